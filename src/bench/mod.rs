@@ -1,0 +1,1 @@
+//! `glimpse bench`: the speed-versus-accuracy study (issue #4).

@@ -1,0 +1,134 @@
+//! `glimpse render SCENE.json --output OUT.png`: one scene without a server.
+
+use crate::cancel::CancelToken;
+use crate::progressive::{self, RenderOptions};
+use crate::raster;
+use crate::scene::{parse_scene, Limits, RenderMode, SceneOrigin};
+use crate::tracer::PathTracer;
+use anyhow::Context;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct RenderArgs {
+    /// The scene document (scene-format.md).
+    pub scene: PathBuf,
+    #[arg(long)]
+    pub output: PathBuf,
+    #[arg(long, value_parser = parse_mode)]
+    pub mode: Option<RenderMode>,
+    /// Write the final statistics as JSON.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Also write the linear HDR image as OpenEXR.
+    #[arg(long)]
+    pub exr: Option<PathBuf>,
+    /// Write the samples, distance and classes layers of the last frame into this folder.
+    #[arg(long)]
+    pub layers: Option<PathBuf>,
+    /// Override `render.samples_per_pixel`.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Override `render.seed`.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Override the image size, as WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<(u32, u32)>,
+}
+
+fn parse_mode(s: &str) -> Result<RenderMode, String> {
+    match s {
+        "reference" => Ok(RenderMode::Reference),
+        "progressive" => Ok(RenderMode::Progressive),
+        "guo" => Ok(RenderMode::Guo),
+        _ => Err(format!("unknown mode {s:?}: expected reference, progressive or guo")),
+    }
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once('x').ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
+    let w: u32 = w.parse().map_err(|_| format!("bad width in {s:?}"))?;
+    let h: u32 = h.parse().map_err(|_| format!("bad height in {s:?}"))?;
+    if w == 0 || h == 0 {
+        return Err("size must be at least 1x1".into());
+    }
+    Ok((w, h))
+}
+
+pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
+    let json = std::fs::read_to_string(&a.scene)
+        .with_context(|| format!("cannot read scene {}", a.scene.display()))?;
+    let dir = a.scene.parent().map(std::path::Path::to_path_buf).unwrap_or_default();
+    let mut scene = parse_scene(&json, &SceneOrigin::File { dir }, &Limits::command_line())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(spp) = a.spp {
+        scene.render.samples_per_pixel = spp.max(1);
+    }
+    if let Some(seed) = a.seed {
+        scene.render.seed = seed;
+    }
+    if let Some((w, h)) = a.size {
+        scene.width = w;
+        scene.height = h;
+    }
+    let tracer = PathTracer::new(&scene);
+    let opts = RenderOptions { mode: a.mode, ..RenderOptions::default() };
+    let bar = progress_bar();
+    let mut on_frame = |f: &progressive::Frame| {
+        bar.set_message(format!(
+            "iteration {} · {:.1}% traced · {:.0} ms",
+            f.iteration,
+            f.stats.pixel_fraction * 100.0,
+            f.stats.total_ms
+        ));
+        bar.tick();
+    };
+    let frame = progressive::render(&scene, &tracer, &opts, &mut on_frame, &CancelToken::new())
+        .map_err(|_| anyhow::anyhow!("render cancelled"))?;
+    bar.finish_and_clear();
+    let png = raster::encode_png_display(&frame.image, scene.display.exposure)?;
+    std::fs::write(&a.output, png).with_context(|| format!("cannot write {}", a.output.display()))?;
+    if let Some(p) = &a.exr {
+        std::fs::write(p, raster::encode_exr(&frame.image)?)
+            .with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    if let Some(p) = &a.stats {
+        std::fs::write(p, serde_json::to_vec_pretty(&frame.stats)?)
+            .with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    if let Some(dir) = &a.layers {
+        write_layers(dir, &frame)?;
+    }
+    eprintln!(
+        "{}: {}x{} {} in {:.0} ms, {:.1}% of pixels traced",
+        a.output.display(),
+        scene.width,
+        scene.height,
+        frame.stats.mode,
+        frame.stats.total_ms,
+        frame.stats.pixel_fraction * 100.0
+    );
+    Ok(())
+}
+
+fn write_layers(dir: &std::path::Path, frame: &progressive::Frame) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for (name, png) in progressive::layers::encode_all(frame)? {
+        let p = dir.join(format!("{name}.png"));
+        std::fs::write(&p, png).with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    Ok(())
+}
+
+/// A spinner with a message on a terminal; hidden when stderr is not a terminal.
+fn progress_bar() -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new_spinner();
+    if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}

@@ -1,0 +1,174 @@
+//! The scene: the JSON contract (`doc`), its validation (`validate`), and the validated,
+//! units-resolved [`Scene`] that the tracer and the progressive renderer consume.
+//!
+//! Only [`Scene`] crosses into the tracer; `doc` types never leave this module's parse step.
+
+pub mod doc;
+pub mod validate;
+
+pub use validate::{parse_scene, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin};
+
+use glam::Vec3;
+
+/// Index of a material in [`Scene::materials`].
+pub type MaterialId = u32;
+/// Index of an object in the document's `objects` list: the primary-hit id of §4.1.
+pub type ObjectId = u32;
+/// The object id of a ray that escapes (background).
+pub const BACKGROUND_ID: ObjectId = u32::MAX;
+
+/// A validated scene, ready to be prepared for tracing. Immutable once built.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub camera: Camera,
+    pub display: Display,
+    pub materials: Vec<Material>,
+    /// `material_names[i]` is the document name of `materials[i]`.
+    pub material_names: Vec<String>,
+    /// One entry per document object, in document order (index = [`ObjectId`]).
+    pub shapes: Vec<Shape>,
+    pub lights: Vec<Light>,
+    pub render: RenderSettings,
+    pub progressive: ProgressiveSettings,
+    /// Soft problems (ignored degenerate triangles, ...), with their JSON paths.
+    pub warnings: Vec<Problem>,
+}
+
+/// Pinhole camera (scene-format.md `camera`).
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub position: Vec3,
+    pub look_at: Vec3,
+    pub up: Vec3,
+    /// Full vertical field of view, degrees.
+    pub fov_y_deg: f32,
+}
+
+/// How the finished image is shown to a person; calibrates the vision model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Display {
+    pub peak_luminance: f32,
+    pub black_luminance: f32,
+    pub exposure: f32,
+    pub pixels_per_degree: f32,
+}
+
+impl Default for Display {
+    fn default() -> Self {
+        Self { peak_luminance: 100.0, black_luminance: 0.5, exposure: 1.0, pixels_per_degree: 28.0 }
+    }
+}
+
+/// A surface's reflectance, constant or procedural.
+#[derive(Clone, Copy, Debug)]
+pub enum Texture {
+    Constant(Vec3),
+    /// 3-D checker of period `scale` between `a` and `b`.
+    Checker { scale: f32, a: Vec3, b: Vec3 },
+    /// Band-limited noise of feature size `scale`, blending `a` to `b`.
+    Noise { scale: f32, a: Vec3, b: Vec3 },
+}
+
+#[derive(Clone, Copy, Debug)]
+pub enum Material {
+    Diffuse { albedo: Texture },
+    Glossy { albedo: Vec3, roughness: f32 },
+    Mirror { reflectance: Vec3 },
+    Dielectric { ior: f32, tint: Vec3 },
+    Emissive { radiance: Vec3, two_sided: bool },
+}
+
+/// One triangle in world space. Shading normals are optional (mesh `normals`).
+#[derive(Clone, Copy, Debug)]
+pub struct Triangle {
+    pub p: [Vec3; 3],
+    pub n: Option<[Vec3; 3]>,
+}
+
+/// A document object after its transform has been applied (world space).
+#[derive(Clone, Debug)]
+pub enum Shape {
+    Sphere { center: Vec3, radius: f32, material: MaterialId },
+    /// Quads, boxes, meshes and OBJ files all become triangles. Degenerate triangles
+    /// were dropped (and counted in [`Scene::warnings`]).
+    Triangles { triangles: Vec<Triangle>, material: MaterialId },
+}
+
+impl Shape {
+    #[must_use]
+    pub fn material(&self) -> MaterialId {
+        match self {
+            Shape::Sphere { material, .. } | Shape::Triangles { material, .. } => *material,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+pub enum Light {
+    Point { position: Vec3, intensity: Vec3 },
+    /// `direction` is the (unit) direction the light travels.
+    Directional { direction: Vec3, irradiance: Vec3 },
+    Environment { radiance: Vec3 },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RenderMode {
+    Progressive,
+    Guo,
+    Reference,
+}
+
+impl RenderMode {
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RenderMode::Progressive => "progressive",
+            RenderMode::Guo => "guo",
+            RenderMode::Reference => "reference",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct RenderSettings {
+    pub mode: RenderMode,
+    pub samples_per_pixel: u32,
+    pub max_bounces: u32,
+    pub seed: u64,
+}
+
+/// The `progressive` block: thresholds of §4.2 and the metric's subdivision test (§3.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProgressiveSettings {
+    pub t0: f32,
+    /// `None`: the mean distance of the first iteration (F&P04 §5).
+    pub t1: Option<f32>,
+    pub initial_rate: f32,
+    pub homogeneity: f32,
+    pub epsilon: f32,
+    pub max_iterations: u32,
+}
+
+impl Default for ProgressiveSettings {
+    fn default() -> Self {
+        Self { t0: 1.0, t1: None, initial_rate: 0.01, homogeneity: 0.8, epsilon: 1.0, max_iterations: 64 }
+    }
+}
+
+impl Scene {
+    /// Number of triangles after tessellation (spheres count 0).
+    #[must_use]
+    pub fn triangle_count(&self) -> usize {
+        self.shapes
+            .iter()
+            .map(|s| match s {
+                Shape::Triangles { triangles, .. } => triangles.len(),
+                Shape::Sphere { .. } => 0,
+            })
+            .sum()
+    }
+}
