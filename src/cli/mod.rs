@@ -37,6 +37,15 @@ pub struct ServeArgs {
     /// Require `Authorization: Bearer TOKEN` on every /v1 call.
     #[arg(long, env = "GLIMPSE_TOKEN")]
     pub token: Option<String>,
+    /// Jobs that may wait for a worker before new submissions get 429 queue_full.
+    #[arg(long, default_value_t = crate::service::DEFAULT_QUEUE_CAPACITY)]
+    pub queue: usize,
+    /// Largest image a request may ask for, in pixels (width × height).
+    #[arg(long)]
+    pub max_pixels: Option<u64>,
+    /// Largest request body in bytes.
+    #[arg(long, default_value_t = crate::service::DEFAULT_MAX_BODY_BYTES)]
+    pub max_body: usize,
 }
 
 #[derive(clap::Args, Debug)]
@@ -56,21 +65,61 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(a) => render::run(&a),
         Command::Compare(a) => compare::run(&a),
         Command::Serve(a) => serve(a),
-        Command::Bench(_a) => anyhow::bail!("bench: not built yet (issue #4)"),
+        Command::Bench(a) => bench(&a),
     }
 }
 
 fn serve(a: ServeArgs) -> anyhow::Result<()> {
+    if a.workers == 0 {
+        anyhow::bail!("--workers must be at least 1");
+    }
+    if a.queue == 0 {
+        anyhow::bail!("--queue must be at least 1");
+    }
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&a.addr)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", a.addr))?;
         tracing::info!("listening on http://{}", listener.local_addr()?);
-        let config = crate::service::Config { data_dir: a.data, workers: a.workers.max(1), token: a.token };
-        crate::service::run(listener, config, async {
-            let _ = tokio::signal::ctrl_c().await;
-        })
-        .await
+        let mut config = crate::service::Config::new(a.data);
+        config.workers = a.workers;
+        config.token = a.token;
+        config.queue_capacity = a.queue;
+        config.max_body_bytes = a.max_body;
+        if let Some(p) = a.max_pixels {
+            config.limits.max_pixels = p;
+        }
+        crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// Ctrl-C, or SIGTERM on Unix (what service managers and containers send).
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
+    }
+    tracing::info!("shutting down");
+}
+
+fn bench(a: &BenchArgs) -> anyhow::Result<()> {
+    let cfg = crate::bench::BenchConfig { scenes_dir: a.scenes.clone(), out_dir: a.out.clone(), quick: a.quick };
+    let results = crate::bench::run(&cfg)?;
+    eprintln!("bench: {} scenes; report in {}", results.len(), a.out.join("report.md").display());
+    Ok(())
 }

@@ -1,9 +1,15 @@
 //! The adaptive perceptual metric of Albin et al. (2002) as used by F&P04 §3.2: a quad-tree
 //! that evaluates the vision-model distance on a random fraction of the pixels.
-//! Owned by issue #3.
+//! Owned by issue #3. Algorithm: vision-model.md §3.2.
+//!
+//! Two corrections to F&P04's wording, argued in vision-model.md §3.2: a cell is a leaf when
+//! its homogeneity h ≥ H (F&P04's text reads the other way round), and h's denominator is
+//! the number of samples, not of pixels.
 
 use crate::raster::{Image, PixelCoord};
 use crate::vision::{ContrastStack, VisionModel};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
 
 /// The subdivision test's parameters (scene `progressive.homogeneity`, `epsilon`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -15,6 +21,13 @@ pub struct MetricParams {
     pub epsilon: f32,
     /// Seeds the random sample positions; derive it from (job seed, frame index).
     pub seed: u64,
+}
+
+impl Default for MetricParams {
+    /// H = 0.8, ε = 1 JND [F04].
+    fn default() -> Self {
+        Self { homogeneity: 0.8, epsilon: 1.0, seed: 0 }
+    }
 }
 
 /// One leaf of the quad-tree.
@@ -47,8 +60,66 @@ impl DistanceMap {
     }
 }
 
+/// Samples per cell of `area` pixels (vision-model.md §3.2, [F04]): 2000 above 10 000 px,
+/// 500 from 1000 to 10 000, a third (rounded up, [D]) below 1000.
+#[must_use]
+pub fn samples_for_area(area: u64) -> usize {
+    if area > 10_000 {
+        2000
+    } else if area >= 1000 {
+        500
+    } else {
+        area.div_ceil(3) as usize
+    }
+}
+
+/// A cell waiting for its decision.
+struct Cell {
+    x: u32,
+    y: u32,
+    w: u32,
+    h: u32,
+    depth: u32,
+    /// Evaluated samples inside the cell (inherited from the parent or drawn here).
+    samples: Vec<(PixelCoord, f32)>,
+    /// The renderer's traced pixels inside the cell not yet evaluated.
+    seeds: Vec<PixelCoord>,
+}
+
+impl Cell {
+    fn area(&self) -> u64 {
+        u64::from(self.w) * u64::from(self.h)
+    }
+    fn contains(&self, p: PixelCoord) -> bool {
+        p.x >= self.x && p.y >= self.y && p.x - self.x < self.w && p.y - self.y < self.h
+    }
+    /// Per-cell RNG stream: (params.seed, cell rectangle) → reproducible and independent of
+    /// the order cells are visited in (§3.2 "seed from the cell id").
+    fn rng(&self, seed: u64) -> Pcg64Mcg {
+        let mut h = seed ^ 0x9e37_79b9_7f4a_7c15;
+        for v in [self.x, self.y, self.w, self.h] {
+            h = splitmix(h ^ u64::from(v));
+        }
+        Pcg64Mcg::seed_from_u64(h)
+    }
+}
+
+fn splitmix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Cells smaller than this in both directions are never split (vision-model.md §3.2, [D]).
+const MIN_SPLIT: u32 = 8;
+
 /// The adaptive block map between two decomposed images, seeded with `seeds` (the
 /// renderer's traced pixels), deterministic for a given `params.seed`.
+///
+/// Breadth-first: each tree level draws its cells' samples (seeds first, then uniform
+/// random pixels without replacement), evaluates all new pixels of the level in one
+/// parallel batch, then decides leaf or split per cell.
 #[must_use]
 pub fn block_map(
     model: &VisionModel,
@@ -57,8 +128,160 @@ pub fn block_map(
     seeds: &[PixelCoord],
     params: &MetricParams,
 ) -> DistanceMap {
-    let _ = (model, a, b, seeds, params);
-    todo!("issue #3")
+    let (w, h) = (a.width().min(b.width()), a.height().min(b.height()));
+    let mut map = Image::filled(w, h, 0f32);
+    if w == 0 || h == 0 {
+        return DistanceMap { map, leaves: Vec::new(), pixels_evaluated: 0 };
+    }
+    let hom = if params.homogeneity.is_finite() { params.homogeneity } else { 0.8 };
+    let eps = if params.epsilon.is_finite() { f64::from(params.epsilon.max(0.0)) } else { 1.0 };
+    let max_depth = u32::BITS - (w.max(h) - 1).leading_zeros(); // ceil(log2 max(W, H))
+    // `taken` marks evaluated (or about to be) pixels; cells are disjoint, so one mask
+    // serves every cell.
+    let mut taken = vec![false; w as usize * h as usize];
+    let idx = |p: PixelCoord| p.y as usize * w as usize + p.x as usize;
+    // Seeds: in bounds, first occurrence only.
+    let mut seen = vec![false; taken.len()];
+    let mut root_seeds = Vec::new();
+    for &p in seeds {
+        if p.x < w && p.y < h && !seen[idx(p)] {
+            seen[idx(p)] = true;
+            root_seeds.push(p);
+        }
+    }
+    drop(seen);
+    let mut frontier = vec![Cell { x: 0, y: 0, w, h, depth: 0, samples: Vec::new(), seeds: root_seeds }];
+    let mut leaves = Vec::new();
+    let mut evaluated = 0usize;
+    let mut batch: Vec<PixelCoord> = Vec::new();
+    let mut values: Vec<f32> = Vec::new();
+    while !frontier.is_empty() {
+        // 1. Choose each cell's new samples.
+        batch.clear();
+        let mut ranges = Vec::with_capacity(frontier.len());
+        for cell in &mut frontier {
+            let start = batch.len();
+            let want = samples_for_area(cell.area());
+            let mut need = want.saturating_sub(cell.samples.len());
+            let mut rng = cell.rng(params.seed);
+            // Seeds first (F&P04 initialise the metric with the rendering sample set); a
+            // random subset of them when there are more than needed.
+            let seeds = std::mem::take(&mut cell.seeds);
+            let mut unused = Vec::new();
+            if seeds.len() <= need {
+                batch.extend_from_slice(&seeds);
+            } else {
+                let mut s = seeds;
+                for i in 0..need {
+                    let j = rng.random_range(i..s.len());
+                    s.swap(i, j);
+                }
+                batch.extend_from_slice(&s[..need]);
+                unused = s.split_off(need);
+            }
+            cell.seeds = unused;
+            for &p in &batch[start..] {
+                taken[idx(p)] = true;
+            }
+            need -= batch.len() - start;
+            let free = cell.area() as usize - cell.samples.len() - (batch.len() - start);
+            let need = need.min(free);
+            if need > 0 {
+                if need * 2 <= free {
+                    // Sparse: rejection sampling is cheap.
+                    let mut got = 0;
+                    while got < need {
+                        let p = PixelCoord::new(
+                            cell.x + rng.random_range(0..cell.w),
+                            cell.y + rng.random_range(0..cell.h),
+                        );
+                        if !taken[idx(p)] {
+                            taken[idx(p)] = true;
+                            batch.push(p);
+                            got += 1;
+                        }
+                    }
+                } else {
+                    // Dense (then the cell is small, < 6000 px): partial shuffle of the free pixels.
+                    let mut pool: Vec<PixelCoord> = (cell.y..cell.y + cell.h)
+                        .flat_map(|y| (cell.x..cell.x + cell.w).map(move |x| PixelCoord::new(x, y)))
+                        .filter(|&p| !taken[idx(p)])
+                        .collect();
+                    for i in 0..need {
+                        let j = rng.random_range(i..pool.len());
+                        pool.swap(i, j);
+                        taken[idx(pool[i])] = true;
+                    }
+                    batch.extend_from_slice(&pool[..need]);
+                }
+            }
+            ranges.push(start..batch.len());
+        }
+        // 2. Evaluate the whole level's new pixels at once (parallel inside).
+        values.clear();
+        values.resize(batch.len(), 0.0);
+        model.distances_at(a, b, &batch, &mut values);
+        evaluated += batch.len();
+        // 3. Decide per cell.
+        let mut next = Vec::new();
+        for (mut cell, r) in frontier.drain(..).zip(ranges) {
+            cell.samples.extend(batch[r.clone()].iter().copied().zip(values[r].iter().copied()));
+            let n = cell.samples.len().max(1);
+            let mean = cell.samples.iter().map(|s| f64::from(s.1)).sum::<f64>() / n as f64;
+            let close = cell.samples.iter().filter(|s| (f64::from(s.1) - mean).abs() <= eps).count();
+            let homog = close as f64 / n as f64;
+            let full = cell.samples.len() as u64 >= cell.area();
+            let small = cell.w < MIN_SPLIT && cell.h < MIN_SPLIT;
+            if homog >= f64::from(hom) || full || small || cell.depth >= max_depth {
+                for y in cell.y..cell.y + cell.h {
+                    let row = &mut map.pixels_mut()[y as usize * w as usize..][cell.x as usize..(cell.x + cell.w) as usize];
+                    row.fill(mean as f32);
+                }
+                if full {
+                    // Fully sampled leaves keep the exact per-pixel values (§3.2).
+                    for &(p, d) in &cell.samples {
+                        map.set(p.x, p.y, d);
+                    }
+                }
+                leaves.push(Leaf {
+                    x: cell.x,
+                    y: cell.y,
+                    width: cell.w,
+                    height: cell.h,
+                    samples: cell.samples.len() as u32,
+                    mean: mean as f32,
+                    homogeneity: homog as f32,
+                });
+            } else {
+                split(cell, &mut next);
+            }
+        }
+        frontier = next;
+    }
+    DistanceMap { map, leaves, pixels_evaluated: evaluated }
+}
+
+/// Splits each dimension ≥ 8 px into floor/ceil halves (2 or 4 children); children inherit
+/// the parent's samples and unused seeds that fall inside them.
+fn split(cell: Cell, out: &mut Vec<Cell>) {
+    let xs: Vec<(u32, u32)> = if cell.w >= MIN_SPLIT {
+        vec![(cell.x, cell.w / 2), (cell.x + cell.w / 2, cell.w - cell.w / 2)]
+    } else {
+        vec![(cell.x, cell.w)]
+    };
+    let ys: Vec<(u32, u32)> = if cell.h >= MIN_SPLIT {
+        vec![(cell.y, cell.h / 2), (cell.y + cell.h / 2, cell.h - cell.h / 2)]
+    } else {
+        vec![(cell.y, cell.h)]
+    };
+    for &(y, ch) in &ys {
+        for &(x, cw) in &xs {
+            let mut c = Cell { x, y, w: cw, h: ch, depth: cell.depth + 1, samples: Vec::new(), seeds: Vec::new() };
+            c.samples = cell.samples.iter().copied().filter(|s| c.contains(s.0)).collect();
+            c.seeds = cell.seeds.iter().copied().filter(|&p| c.contains(p)).collect();
+            out.push(c);
+        }
+    }
 }
 
 /// The per-pixel map (every pixel evaluated) in the same form.
@@ -68,3 +291,6 @@ pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> Di
     let pixels_evaluated = map.len();
     DistanceMap { map, leaves: Vec::new(), pixels_evaluated }
 }
+
+#[cfg(test)]
+mod tests;

@@ -7,7 +7,11 @@ use crate::raster::{self, CodecError, Image};
 pub const LAYERS: [&str; 4] = ["image", "samples", "distance", "classes"];
 
 /// Encodes one layer as PNG. `exposure` applies to the `image` layer.
-pub fn encode_layer(frame: &Frame, layer: &str, exposure: f32) -> Result<Option<Vec<u8>>, CodecError> {
+pub fn encode_layer(
+    frame: &Frame,
+    layer: &str,
+    exposure: f32,
+) -> Result<Option<Vec<u8>>, CodecError> {
     Ok(Some(match layer {
         "image" => raster::encode_png_display(&frame.image, exposure)?,
         "samples" => raster::encode_png_rgb8(&frame.samples.map(|s| match s {
@@ -40,10 +44,39 @@ pub fn encode_all(frame: &Frame) -> Result<Vec<(&'static str, Vec<u8>)>, CodecEr
     Ok(out)
 }
 
-/// Placeholder grey scale until `raster::colormap` has the JND colour scale (issue #3).
+/// The JND colour scale of `raster::colormap` (issue #3), at the frame's size so viewers
+/// can overlay it; the legend variant (`colormap::distance_with_legend`) is larger.
 fn distance_colours(d: &Image<f32>) -> Image<[u8; 3]> {
-    d.map(|&v| {
-        let g = ((v / 4.0).clamp(0.0, 1.0) * 255.0) as u8;
-        [g, g, g]
-    })
+    raster::colormap::distance_rgb8(d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::Rgb;
+
+    #[test]
+    fn every_layer_encodes_and_distance_is_optional() {
+        let (w, h) = (5, 3);
+        let mut frame = Frame {
+            iteration: 1,
+            image: Image::filled(w, h, Rgb::splat(0.5)),
+            samples: Image::filled(w, h, SampleCell::New),
+            distance: Some(Image::from_fn(w, h, |x, _| x as f32 * 3.0)),
+            classes: Image::filled(w, h, ClassCell::Complex),
+            stats: Default::default(),
+            last: true,
+        };
+        let all = encode_all(&frame).expect("encodes");
+        let names: Vec<&str> = all.iter().map(|(n, _)| *n).collect();
+        assert_eq!(names, LAYERS.to_vec());
+        assert!(all.iter().all(|(_, png)| png.starts_with(b"\x89PNG")));
+        // The colour scale is not grey: a large distance is coloured.
+        let dist = distance_colours(frame.distance.as_ref().expect("set"));
+        let top = *dist.get(4, 0);
+        assert!(top[0] != top[2], "{top:?}");
+        frame.distance = None;
+        assert_eq!(encode_all(&frame).expect("encodes").len(), 3);
+        assert_eq!(encode_layer(&frame, "nope", 1.0).expect("ok"), None);
+    }
 }

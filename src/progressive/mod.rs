@@ -3,9 +3,47 @@
 //! One entry point, [`render`], serves the command line, the service and the benches:
 //! it yields a [`Frame`] per iteration through a callback and returns the final one.
 //! Owned by issue #4 (the reference mode below is the shared skeleton).
+//!
+//! Pipeline (F&P04 §4, vision-model.md §6), see [`driver`]:
+//! * [`seeding`] — §4.1: object-id map (one ray per pixel), contour map, edge-avoiding
+//!   Gaussian probability map (zero ON contours, raised AROUND them), a deterministic draw
+//!   with `render.seed`, plus the four image corners so the triangulation covers the image.
+//! * [`mesh`] — spade Delaunay of every traced pixel (pixel centres = integer points) and
+//!   Gouraud shading by bounding-box rasterisation (each pixel owned by one triangle).
+//! * [`classify`] — mean block-map distance per triangle; final `d < T0` (strict),
+//!   smooth `T0 ≤ d < T1`, complex `d ≥ T1`; T1 = `progressive.t1` or the mean of the
+//!   first map, raised to `T0·(1+1e-3)` (§2.9).
+//! * [`complex`] — contour walk, rupture pixels and directional interpolation; triangles
+//!   with longest edge < 5 px are traced whole.
+//! * [`guo`] — Guo's baseline: Mitchell's contrast test and the least-discrepancy search.
+//! * [`uniform`] — the equal-time uniform baseline.
+//!
+//! Choices worth knowing (see the report of issue #4):
+//! * Frame 0 is the Gouraud image of the first sample set; frame 1 adds one sample near
+//!   every triangle's centre; from frame 1 on, each frame carries the distance map between
+//!   it and the previous frame and the classes that decide the next tracing step.
+//! * Every traced pixel (contour pixels included) becomes a vertex, so a complex
+//!   triangle is subdivided along its traced contour next iteration; its directional fill
+//!   is shown in the frame that follows its contour tracing, then replaced by the finer
+//!   triangulation's Gouraud shading (which the metric then judges).
+//! * Pixels are traced once; the image keeps traced values bit for bit, so T0 = 0 ends
+//!   with the reference image exactly (non-finite oracle values are mapped to finite ones:
+//!   NaN → 0, +∞ → 1e30, so one bad sample cannot spread through the interpolation).
+//! * 1-pixel-wide images have no triangle (collinear samples): they are traced whole.
+//! * Stop: every triangle final (no work), every pixel traced, `max_iterations` frames,
+//!   `RenderOptions::max_pixels` (the last tracing step is truncated to the budget) or
+//!   `max_time` (checked between chunks of 4096 pixels; the first sample set is always
+//!   traced whole). `stats.stop_reason` says which.
 
+pub mod classify;
+pub mod complex;
+pub mod driver;
+pub mod guo;
 pub mod layers;
+pub mod mesh;
+pub mod seeding;
 pub mod stats;
+pub mod uniform;
 
 pub use stats::{IterationStats, RenderStats};
 
@@ -13,6 +51,7 @@ use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage};
 use crate::scene::{RenderMode, Scene};
 use crate::tracer::{self, PixelOracle};
+use crate::vision::{DisplayModel, VisionModel};
 use std::time::Instant;
 
 /// §4.2's three classes of triangle.
@@ -87,9 +126,59 @@ pub fn render(
 ) -> Result<Frame, Cancelled> {
     match opts.mode.unwrap_or(scene.render.mode) {
         RenderMode::Reference => render_reference(scene, oracle, on_frame, cancel),
-        RenderMode::Progressive | RenderMode::Guo => {
-            todo!("issue #4: progressive loop")
+        RenderMode::Progressive => {
+            let settings = settings(scene, opts, driver::Oracle::Perceptual);
+            let d = &scene.display;
+            let display = DisplayModel {
+                peak_luminance: d.peak_luminance,
+                black_luminance: d.black_luminance,
+                exposure: d.exposure,
+                pixels_per_degree: d.pixels_per_degree,
+            };
+            // The oracle's size is authoritative (it is what gets traced).
+            let (w, h) = oracle.size();
+            let mut judge = driver::VisionJudge::new(
+                VisionModel::new(display, w, h),
+                scene.progressive.homogeneity,
+                scene.progressive.epsilon,
+                scene.render.seed,
+            );
+            driver::run(oracle, &settings, &mut judge, on_frame, cancel)
         }
+        RenderMode::Guo => {
+            let settings = settings(scene, opts, driver::Oracle::Guo);
+            driver::run(oracle, &settings, &mut NoJudge, on_frame, cancel)
+        }
+    }
+}
+
+/// Guo mode never asks for a distance.
+struct NoJudge;
+
+impl driver::Judge for NoJudge {
+    fn distance(
+        &mut self,
+        _: &LinearImage,
+        _: &LinearImage,
+        _: &[crate::raster::PixelCoord],
+        _: u32,
+    ) -> Option<Image<f32>> {
+        None
+    }
+}
+
+fn settings(scene: &Scene, opts: &RenderOptions, oracle: driver::Oracle) -> driver::Settings {
+    let p = &scene.progressive;
+    driver::Settings {
+        oracle,
+        t0: p.t0,
+        t1: p.t1,
+        initial_rate: p.initial_rate,
+        max_iterations: p.max_iterations,
+        seed: scene.render.seed,
+        exposure: scene.display.exposure,
+        max_pixels: opts.max_pixels,
+        max_time: opts.max_time,
     }
 }
 

@@ -38,4 +38,11 @@ pub struct RenderStats {
     pub t1_used: Option<f64>,
     #[serde(default)]
     pub per_iteration: Vec<IterationStats>,
+    /// Object-id map and first sample set (§4.1), ms; not part of trace_ms.
+    #[serde(default)]
+    pub analysis_ms: f64,
+    /// Why the loop ended: "all_final", "all_traced", "max_iterations", "max_pixels",
+    /// "max_time", "no_triangles" (1-pixel-wide images are traced fully).
+    #[serde(default)]
+    pub stop_reason: Option<String>,
 }

@@ -1,2 +1,493 @@
 //! The scene document exactly as `shared/spec/scene-format.md` defines it (serde,
 //! unknown fields refused). Owned by issue #2's scene work.
+//!
+//! These types only describe the *shape* of the JSON; every range and consistency check
+//! lives in [`super::validate`], which turns a [`SceneDoc`] into a [`super::Scene`].
+//!
+//! Why the tagged enums (`"type": ...`) are deserialized by hand: serde's derived
+//! internally tagged enums buffer the object and then deserialize the variant from that
+//! buffer, which (a) hides the path of a bad field inside the variant from
+//! `serde_path_to_error` (an error in `objects[3].radius` would only say `objects[3]`) and
+//! (b) gives poor messages for an unknown `type`. [`tagged`] instead removes `type`, picks
+//! the variant struct and deserializes it with its own path tracking; the inner path is
+//! carried out in the error message between two [`PATH_MARK`] characters and spliced onto
+//! the outer path by `validate` (see [`split_marked`]). Nesting (a texture inside a
+//! material) composes.
+//!
+//! Numbers: every real is `f32` (what the tracer uses). serde converts an `f64` that is
+//! too large for `f32` to an infinity without complaint, so `validate` checks every real
+//! for finiteness and reports the path. Counts (`width`, `samples_per_pixel`, indices,
+//! ...) are `u64` so that a huge value reaches validation and is reported against the
+//! server's limit (`too_large`) instead of failing as a type error.
+
+use std::collections::BTreeMap;
+
+use serde::de::{DeserializeOwned, Error as _};
+use serde::{Deserialize, Deserializer};
+use serde_json::Value;
+
+use super::RenderMode;
+
+/// A 3-vector or an RGB triple, as written in the document.
+pub type V3 = [f32; 3];
+
+/// The whole document (scene-format.md, top level).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneDoc {
+    /// Must be 1 (checked in validation so the message can say so).
+    pub version: u64,
+    #[serde(default)]
+    pub name: Option<String>,
+    pub image: ImageDoc,
+    pub camera: CameraDoc,
+    #[serde(default)]
+    pub display: DisplayDoc,
+    /// A `BTreeMap`, so iteration is sorted by name: this is the deterministic material
+    /// order of [`super::Scene::materials`]. Optional: a scene lit only by an
+    /// environment, with no objects, needs none.
+    #[serde(default)]
+    pub materials: BTreeMap<String, MaterialDoc>,
+    #[serde(default)]
+    pub objects: Vec<ObjectDoc>,
+    #[serde(default)]
+    pub lights: Vec<LightDoc>,
+    #[serde(default)]
+    pub render: RenderDoc,
+    #[serde(default)]
+    pub progressive: ProgressiveDoc,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageDoc {
+    pub width: u64,
+    pub height: u64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDoc {
+    pub position: V3,
+    pub look_at: V3,
+    /// Not given a default by the spec; +y is the universal convention, so a document
+    /// may omit it.
+    #[serde(default = "default_up")]
+    pub up: V3,
+    pub fov_y: f32,
+}
+
+fn default_up() -> V3 {
+    [0.0, 1.0, 0.0]
+}
+
+/// Defaults from scene-format.md `display`: 100, 0.5, 1.0, 28.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DisplayDoc {
+    pub peak_luminance: f32,
+    pub black_luminance: f32,
+    pub exposure: f32,
+    pub pixels_per_degree: f32,
+}
+
+impl Default for DisplayDoc {
+    fn default() -> Self {
+        let d = super::Display::default();
+        Self {
+            peak_luminance: d.peak_luminance,
+            black_luminance: d.black_luminance,
+            exposure: d.exposure,
+            pixels_per_degree: d.pixels_per_degree,
+        }
+    }
+}
+
+/// Materials (`"type"`: diffuse, glossy, mirror, dielectric, emissive).
+#[derive(Clone, Debug)]
+pub enum MaterialDoc {
+    Diffuse(DiffuseDoc),
+    Glossy(GlossyDoc),
+    Mirror(MirrorDoc),
+    Dielectric(DielectricDoc),
+    Emissive(EmissiveDoc),
+}
+
+/// Exactly one of `albedo` and `texture` (checked in validation).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DiffuseDoc {
+    #[serde(default)]
+    pub albedo: Option<V3>,
+    #[serde(default)]
+    pub texture: Option<TextureDoc>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GlossyDoc {
+    pub albedo: V3,
+    pub roughness: f32,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MirrorDoc {
+    pub reflectance: V3,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DielectricDoc {
+    pub ior: f32,
+    /// Default: clear glass, `[1, 1, 1]`.
+    #[serde(default)]
+    pub tint: Option<V3>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EmissiveDoc {
+    pub radiance: V3,
+    /// Default false: emits only on the side of the geometric normal.
+    #[serde(default)]
+    pub two_sided: bool,
+}
+
+/// Procedural textures (`"type"`: checker, noise); both have the same fields.
+#[derive(Clone, Debug)]
+pub enum TextureDoc {
+    Checker(TextureFields),
+    Noise(TextureFields),
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TextureFields {
+    pub scale: f32,
+    pub a: V3,
+    pub b: V3,
+}
+
+/// `transform`: scale, then rotate x, y, z (degrees), then translate.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransformDoc {
+    #[serde(default)]
+    pub translate: Option<V3>,
+    #[serde(default)]
+    pub scale: Option<ScaleDoc>,
+    #[serde(default)]
+    pub rotate_x: Option<f32>,
+    #[serde(default)]
+    pub rotate_y: Option<f32>,
+    #[serde(default)]
+    pub rotate_z: Option<f32>,
+}
+
+/// `scale`: a number (uniform) or a 3-vector (per axis).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ScaleDoc {
+    Uniform(f32),
+    Axes(V3),
+}
+
+impl<'de> Deserialize<'de> for ScaleDoc {
+    /// By hand rather than `#[serde(untagged)]`, whose error ("data did not match any
+    /// variant") does not tell the user what is expected.
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = Value::deserialize(d)?;
+        if v.is_number() {
+            return f32::deserialize(v)
+                .map(ScaleDoc::Uniform)
+                .map_err(D::Error::custom);
+        }
+        V3::deserialize(v).map(ScaleDoc::Axes).map_err(|e| {
+            D::Error::custom(format!("{e}; expected a number or an array of 3 numbers"))
+        })
+    }
+}
+
+/// Objects (`"type"`: sphere, quad, box, mesh, obj).
+#[derive(Clone, Debug)]
+pub enum ObjectDoc {
+    Sphere(SphereDoc),
+    Quad(QuadDoc),
+    Box(BoxDoc),
+    Mesh(MeshDoc),
+    Obj(ObjDoc),
+}
+
+impl ObjectDoc {
+    #[must_use]
+    pub fn material(&self) -> &str {
+        match self {
+            ObjectDoc::Sphere(o) => &o.material,
+            ObjectDoc::Quad(o) => &o.material,
+            ObjectDoc::Box(o) => &o.material,
+            ObjectDoc::Mesh(o) => &o.material,
+            ObjectDoc::Obj(o) => &o.material,
+        }
+    }
+
+    #[must_use]
+    pub fn transform(&self) -> Option<&TransformDoc> {
+        match self {
+            ObjectDoc::Sphere(o) => o.transform.as_ref(),
+            ObjectDoc::Quad(o) => o.transform.as_ref(),
+            ObjectDoc::Box(o) => o.transform.as_ref(),
+            ObjectDoc::Mesh(o) => o.transform.as_ref(),
+            ObjectDoc::Obj(o) => o.transform.as_ref(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphereDoc {
+    pub center: V3,
+    pub radius: f32,
+    pub material: String,
+    #[serde(default)]
+    pub transform: Option<TransformDoc>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QuadDoc {
+    pub corner: V3,
+    pub edge_u: V3,
+    pub edge_v: V3,
+    pub material: String,
+    #[serde(default)]
+    pub transform: Option<TransformDoc>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxDoc {
+    pub min: V3,
+    pub max: V3,
+    pub material: String,
+    #[serde(default)]
+    pub transform: Option<TransformDoc>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshDoc {
+    pub positions: Vec<V3>,
+    pub indices: Vec<[u64; 3]>,
+    #[serde(default)]
+    pub normals: Option<Vec<V3>>,
+    pub material: String,
+    #[serde(default)]
+    pub transform: Option<TransformDoc>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjDoc {
+    pub path: String,
+    pub material: String,
+    #[serde(default)]
+    pub transform: Option<TransformDoc>,
+}
+
+/// Explicit lights (`"type"`: point, directional, environment).
+#[derive(Clone, Debug)]
+pub enum LightDoc {
+    Point(PointLightDoc),
+    Directional(DirectionalLightDoc),
+    Environment(EnvironmentLightDoc),
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointLightDoc {
+    pub position: V3,
+    pub intensity: V3,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DirectionalLightDoc {
+    pub direction: V3,
+    pub irradiance: V3,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentLightDoc {
+    pub radiance: V3,
+}
+
+/// `render`. The spec gives no defaults; ours are cheap and safe: a progressive render
+/// of 16 samples per traced pixel, 5 bounces, seed 1.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderDoc {
+    pub mode: RenderMode,
+    pub samples_per_pixel: u64,
+    pub max_bounces: u64,
+    pub seed: u64,
+}
+
+impl Default for RenderDoc {
+    fn default() -> Self {
+        Self {
+            mode: RenderMode::Progressive,
+            samples_per_pixel: 16,
+            max_bounces: 5,
+            seed: 1,
+        }
+    }
+}
+
+/// `progressive`. Defaults are [`super::ProgressiveSettings::default`] (the spec's example
+/// values: t0 1, t1 null, initial_rate 0.01, homogeneity 0.8, epsilon 1, 64 iterations).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProgressiveDoc {
+    pub t0: f32,
+    pub t1: Option<f32>,
+    pub initial_rate: f32,
+    pub homogeneity: f32,
+    pub epsilon: f32,
+    pub max_iterations: u64,
+}
+
+impl Default for ProgressiveDoc {
+    fn default() -> Self {
+        let p = super::ProgressiveSettings::default();
+        Self {
+            t0: p.t0,
+            t1: p.t1,
+            initial_rate: p.initial_rate,
+            homogeneity: p.homogeneity,
+            epsilon: p.epsilon,
+            max_iterations: u64::from(p.max_iterations),
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Tagged-enum plumbing (see the module doc).
+
+/// Delimits a path carried inside an error message: `MARK path MARK message`. A control
+/// character that no JSON key printed by serde can produce unescaped.
+pub const PATH_MARK: char = '\u{1f}';
+
+/// Splits a message produced by [`tagged`] into (inner path, message). A message without
+/// a mark has an empty inner path.
+#[must_use]
+pub fn split_marked(msg: &str) -> (&str, &str) {
+    if let Some(rest) = msg.strip_prefix(PATH_MARK) {
+        if let Some(end) = rest.find(PATH_MARK) {
+            return (&rest[..end], &rest[end + PATH_MARK.len_utf8()..]);
+        }
+    }
+    ("", msg)
+}
+
+/// Joins two JSON paths (`objects[3]` + `radius`, `positions` + `[2]`).
+#[must_use]
+pub fn join_path(outer: &str, inner: &str) -> String {
+    if outer.is_empty() {
+        inner.to_string()
+    } else if inner.is_empty() {
+        outer.to_string()
+    } else if inner.starts_with('[') {
+        format!("{outer}{inner}")
+    } else {
+        format!("{outer}.{inner}")
+    }
+}
+
+fn marked<E: serde::de::Error>(path: &str, msg: impl std::fmt::Display) -> E {
+    E::custom(format!("{PATH_MARK}{path}{PATH_MARK}{msg}"))
+}
+
+/// Reads a JSON object, removes and checks its `type`, and returns it with the rest.
+fn tagged<'de, D: Deserializer<'de>>(
+    d: D,
+    what: &str,
+    types: &[&str],
+) -> Result<(String, Value), D::Error> {
+    let mut map = serde_json::Map::<String, Value>::deserialize(d)?;
+    let list = types.join(", ");
+    match map.remove("type") {
+        None => Err(marked(
+            "type",
+            format!("missing field `type` (a {what} type: one of {list})"),
+        )),
+        Some(Value::String(t)) if types.contains(&t.as_str()) => Ok((t, Value::Object(map))),
+        Some(Value::String(t)) => Err(marked(
+            "type",
+            format!("unknown {what} type `{t}`, expected one of {list}"),
+        )),
+        Some(other) => Err(marked(
+            "type",
+            format!("must be a string (one of {list}), got {other}"),
+        )),
+    }
+}
+
+/// Deserializes one variant's fields with path tracking, carrying the inner path out.
+fn variant<T: DeserializeOwned, E: serde::de::Error>(v: Value) -> Result<T, E> {
+    serde_path_to_error::deserialize(v).map_err(|e| {
+        let outer = e.path().to_string();
+        let outer = if outer == "." { String::new() } else { outer };
+        let msg = e.into_inner().to_string();
+        let (inner, msg) = split_marked(&msg);
+        marked(&join_path(&outer, inner), msg)
+    })
+}
+
+impl<'de> Deserialize<'de> for MaterialDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let types = ["diffuse", "glossy", "mirror", "dielectric", "emissive"];
+        let (t, rest) = tagged(d, "material", &types)?;
+        match t.as_str() {
+            "diffuse" => variant(rest).map(MaterialDoc::Diffuse),
+            "glossy" => variant(rest).map(MaterialDoc::Glossy),
+            "mirror" => variant(rest).map(MaterialDoc::Mirror),
+            "dielectric" => variant(rest).map(MaterialDoc::Dielectric),
+            _ => variant(rest).map(MaterialDoc::Emissive),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for TextureDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let (t, rest) = tagged(d, "texture", &["checker", "noise"])?;
+        match t.as_str() {
+            "checker" => variant(rest).map(TextureDoc::Checker),
+            _ => variant(rest).map(TextureDoc::Noise),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for ObjectDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let (t, rest) = tagged(d, "object", &["sphere", "quad", "box", "mesh", "obj"])?;
+        match t.as_str() {
+            "sphere" => variant(rest).map(ObjectDoc::Sphere),
+            "quad" => variant(rest).map(ObjectDoc::Quad),
+            "box" => variant(rest).map(ObjectDoc::Box),
+            "mesh" => variant(rest).map(ObjectDoc::Mesh),
+            _ => variant(rest).map(ObjectDoc::Obj),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for LightDoc {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let (t, rest) = tagged(d, "light", &["point", "directional", "environment"])?;
+        match t.as_str() {
+            "point" => variant(rest).map(LightDoc::Point),
+            "directional" => variant(rest).map(LightDoc::Directional),
+            _ => variant(rest).map(LightDoc::Environment),
+        }
+    }
+}

@@ -4,6 +4,8 @@
 //! Only [`Scene`] crosses into the tracer; `doc` types never leave this module's parse step.
 
 pub mod doc;
+pub mod obj;
+pub mod transform;
 pub mod validate;
 
 pub use validate::{parse_scene, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin};
@@ -58,7 +60,12 @@ pub struct Display {
 
 impl Default for Display {
     fn default() -> Self {
-        Self { peak_luminance: 100.0, black_luminance: 0.5, exposure: 1.0, pixels_per_degree: 28.0 }
+        Self {
+            peak_luminance: 100.0,
+            black_luminance: 0.5,
+            exposure: 1.0,
+            pixels_per_degree: 28.0,
+        }
     }
 }
 
@@ -67,9 +74,17 @@ impl Default for Display {
 pub enum Texture {
     Constant(Vec3),
     /// 3-D checker of period `scale` between `a` and `b`.
-    Checker { scale: f32, a: Vec3, b: Vec3 },
+    Checker {
+        scale: f32,
+        a: Vec3,
+        b: Vec3,
+    },
     /// Band-limited noise of feature size `scale`, blending `a` to `b`.
-    Noise { scale: f32, a: Vec3, b: Vec3 },
+    Noise {
+        scale: f32,
+        a: Vec3,
+        b: Vec3,
+    },
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -82,6 +97,11 @@ pub enum Material {
 }
 
 /// One triangle in world space. Shading normals are optional (mesh `normals`).
+///
+/// Winding (set by `validate`): the geometric normal is `(p[1] − p[0]) × (p[2] − p[0])`.
+/// For a quad it is `edge_u × edge_v`, for a box it points outwards, for a mesh it follows
+/// the index order, and a mirroring transform re-winds the triangle so this stays true.
+/// One-sided emitters emit on this side.
 #[derive(Clone, Copy, Debug)]
 pub struct Triangle {
     pub p: [Vec3; 3],
@@ -91,10 +111,17 @@ pub struct Triangle {
 /// A document object after its transform has been applied (world space).
 #[derive(Clone, Debug)]
 pub enum Shape {
-    Sphere { center: Vec3, radius: f32, material: MaterialId },
+    Sphere {
+        center: Vec3,
+        radius: f32,
+        material: MaterialId,
+    },
     /// Quads, boxes, meshes and OBJ files all become triangles. Degenerate triangles
     /// were dropped (and counted in [`Scene::warnings`]).
-    Triangles { triangles: Vec<Triangle>, material: MaterialId },
+    Triangles {
+        triangles: Vec<Triangle>,
+        material: MaterialId,
+    },
 }
 
 impl Shape {
@@ -108,10 +135,18 @@ impl Shape {
 
 #[derive(Clone, Copy, Debug)]
 pub enum Light {
-    Point { position: Vec3, intensity: Vec3 },
+    Point {
+        position: Vec3,
+        intensity: Vec3,
+    },
     /// `direction` is the (unit) direction the light travels.
-    Directional { direction: Vec3, irradiance: Vec3 },
-    Environment { radiance: Vec3 },
+    Directional {
+        direction: Vec3,
+        irradiance: Vec3,
+    },
+    Environment {
+        radiance: Vec3,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -155,7 +190,14 @@ pub struct ProgressiveSettings {
 
 impl Default for ProgressiveSettings {
     fn default() -> Self {
-        Self { t0: 1.0, t1: None, initial_rate: 0.01, homogeneity: 0.8, epsilon: 1.0, max_iterations: 64 }
+        Self {
+            t0: 1.0,
+            t1: None,
+            initial_rate: 0.01,
+            homogeneity: 0.8,
+            epsilon: 1.0,
+            max_iterations: 64,
+        }
     }
 }
 

@@ -6,8 +6,21 @@
 
 use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
-use crate::scene::{ObjectId, Scene};
+use crate::scene::{Material, ObjectId, Scene, Shape, Texture, BACKGROUND_ID};
+use glam::Vec3;
+use material::Bsdf;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+pub mod bvh;
+pub mod camera;
+pub mod fixtures;
+mod integrator;
+pub mod light;
+pub mod material;
+pub mod rng;
+pub mod sampling;
+pub mod texture;
 
 /// Anything that can compute the true colour of one pixel. The progressive loop, the
 /// benches and the tests see only this trait; tests pass analytic oracles.
@@ -35,15 +48,17 @@ pub fn trace_pixels(
     cancel: &CancelToken,
 ) -> Result<Vec<Rgb>, Cancelled> {
     let mut out = vec![Rgb::ZERO; pixels.len()];
-    out.par_chunks_mut(BATCH).zip(pixels.par_chunks(BATCH)).try_for_each(|(o, p)| {
-        if cancel.is_cancelled() {
-            return Err(Cancelled);
-        }
-        for (dst, &px) in o.iter_mut().zip(p) {
-            *dst = oracle.radiance(px);
-        }
-        Ok(())
-    })?;
+    out.par_chunks_mut(BATCH)
+        .zip(pixels.par_chunks(BATCH))
+        .try_for_each(|(o, p)| {
+            if cancel.is_cancelled() {
+                return Err(Cancelled);
+            }
+            for (dst, &px) in o.iter_mut().zip(p) {
+                *dst = oracle.radiance(px);
+            }
+            Ok(())
+        })?;
     Ok(out)
 }
 
@@ -68,22 +83,24 @@ pub fn render_reference_with(
     let total = w as usize * h as usize;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let mut data = vec![Rgb::ZERO; total];
-    data.par_chunks_mut(BATCH).enumerate().try_for_each(|(c, chunk)| {
-        if cancel.is_cancelled() {
-            return Err(Cancelled);
-        }
-        for (k, dst) in chunk.iter_mut().enumerate() {
-            let i = c * BATCH + k;
-            let p = PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32);
-            *dst = match samples_seed {
-                None => oracle.radiance(p),
-                Some((s, seed)) => oracle.radiance_with(p, s, seed),
-            };
-        }
-        let d = done.fetch_add(chunk.len(), std::sync::atomic::Ordering::Relaxed) + chunk.len();
-        progress(d, total);
-        Ok(())
-    })?;
+    data.par_chunks_mut(BATCH)
+        .enumerate()
+        .try_for_each(|(c, chunk)| {
+            if cancel.is_cancelled() {
+                return Err(Cancelled);
+            }
+            for (k, dst) in chunk.iter_mut().enumerate() {
+                let i = c * BATCH + k;
+                let p = PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32);
+                *dst = match samples_seed {
+                    None => oracle.radiance(p),
+                    Some((s, seed)) => oracle.radiance_with(p, s, seed),
+                };
+            }
+            let d = done.fetch_add(chunk.len(), std::sync::atomic::Ordering::Relaxed) + chunk.len();
+            progress(d, total);
+            Ok(())
+        })?;
     Ok(Image::from_vec(w, h, data).expect("size matches by construction"))
 }
 
@@ -93,37 +110,205 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     let (w, h) = oracle.size();
     let data: Vec<ObjectId> = (0..w as usize * h as usize)
         .into_par_iter()
-        .map(|i| oracle.object_id(PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32)))
+        .map(|i| {
+            oracle.object_id(PixelCoord::new(
+                (i % w as usize) as u32,
+                (i / w as usize) as u32,
+            ))
+        })
         .collect();
     Image::from_vec(w, h, data).expect("size matches by construction")
 }
 
-/// The path tracer over a prepared scene (BVH, emitter list, feature flags).
-/// Owned by issue #2's tracer work.
+/// What a prepared scene contains, decided once in [`PathTracer::new`] so that a scene
+/// pays nothing for what it lacks (STYLE.md "branch on scene features when the scene is
+/// prepared").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Features {
+    /// Any light that next-event estimation can sample (emitters, point, directional,
+    /// non-black environment).
+    pub has_lights: bool,
+    pub has_emitters: bool,
+    pub has_environment: bool,
+    pub has_dielectric: bool,
+    pub has_glossy: bool,
+    pub has_mirror: bool,
+    pub has_texture: bool,
+    pub has_spheres: bool,
+}
+
+/// A scene material resolved for shading.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum ResolvedMaterial {
+    /// The BSDF is the same everywhere on the surface.
+    Fixed(Bsdf),
+    /// Diffuse with a procedural albedo.
+    Textured(crate::scene::Texture),
+}
+
+/// The path tracer over a prepared scene (BVH, emitter list, feature flags). Immutable
+/// once built and shared by every thread (Tungsten's `TraceableScene`).
 pub struct PathTracer {
-    _private: (),
+    width: u32,
+    height: u32,
+    pub(crate) camera: camera::Pinhole,
+    pub(crate) geo: bvh::Geometry,
+    pub(crate) lights: light::Lights,
+    pub(crate) materials: Vec<ResolvedMaterial>,
+    pub(crate) max_bounces: u32,
+    samples_per_pixel: u32,
+    seed: u64,
+    pub(crate) features: Features,
+    /// Samples dropped because they were NaN or infinite (diagnostics only).
+    dropped: AtomicU64,
 }
 
 impl PathTracer {
     /// Prepares `scene` for tracing: builds the BVH and decides which code paths it needs.
     #[must_use]
     pub fn new(scene: &Scene) -> Self {
-        let _ = scene;
-        todo!("issue #2: path tracer")
+        let mut geo = bvh::Geometry::build(scene);
+        let lights = light::Lights::build(scene, &mut geo);
+        let materials: Vec<ResolvedMaterial> = scene
+            .materials
+            .iter()
+            .map(|m| match *m {
+                Material::Diffuse {
+                    albedo: Texture::Constant(c),
+                } => ResolvedMaterial::Fixed(Bsdf::Diffuse { albedo: c }),
+                Material::Diffuse { albedo } => ResolvedMaterial::Textured(albedo),
+                Material::Glossy { albedo, roughness } => ResolvedMaterial::Fixed(Bsdf::Glossy {
+                    albedo,
+                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                }),
+                Material::Mirror { reflectance } => {
+                    ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
+                }
+                Material::Dielectric { ior, tint } => {
+                    ResolvedMaterial::Fixed(Bsdf::Dielectric { ior, tint })
+                }
+                Material::Emissive { .. } => ResolvedMaterial::Fixed(Bsdf::Black),
+            })
+            .collect();
+        let used = |f: &dyn Fn(&Material) -> bool| {
+            scene
+                .shapes
+                .iter()
+                .any(|s| scene.materials.get(s.material() as usize).is_some_and(f))
+        };
+        let features = Features {
+            has_lights: !lights.is_empty(),
+            has_emitters: lights.emitters.iter().any(|e| {
+                matches!(
+                    e,
+                    light::Emitter::Tri { .. } | light::Emitter::Sphere { .. }
+                )
+            }),
+            has_environment: lights.env_radiance.is_some(),
+            has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
+            has_glossy: used(&|m| matches!(m, Material::Glossy { .. })),
+            has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
+            has_texture: used(&|m| {
+                matches!(
+                    m,
+                    Material::Diffuse {
+                        albedo: Texture::Checker { .. } | Texture::Noise { .. }
+                    }
+                )
+            }),
+            has_spheres: scene
+                .shapes
+                .iter()
+                .any(|s| matches!(s, Shape::Sphere { .. })),
+        };
+        Self {
+            width: scene.width,
+            height: scene.height,
+            camera: camera::Pinhole::new(&scene.camera, scene.width, scene.height),
+            geo,
+            lights,
+            materials,
+            max_bounces: scene.render.max_bounces,
+            samples_per_pixel: scene.render.samples_per_pixel,
+            seed: scene.render.seed,
+            features,
+            dropped: AtomicU64::new(0),
+        }
+    }
+
+    /// The flags decided at preparation.
+    #[must_use]
+    pub fn features(&self) -> Features {
+        self.features
+    }
+
+    /// How many samples were dropped as NaN/Inf since this tracer was built.
+    #[must_use]
+    pub fn dropped_samples(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Number of primitives in the BVH (triangles + spheres).
+    #[must_use]
+    pub fn primitive_count(&self) -> usize {
+        self.geo.prims.len()
+    }
+
+    /// Traces one camera ray through a jittered position of pixel `p` and returns whether
+    /// it hit anything: the primary-ray throughput benchmark (benches/tracer.rs).
+    #[must_use]
+    pub fn primary_ray_hits(&self, p: PixelCoord, sample: u32, seed: u64) -> bool {
+        let mut rng = rng::Rng::for_sample(seed, p.x, p.y, sample);
+        let d = self.camera.direction(p.x, p.y, rng.next_2d());
+        self.geo
+            .intersect(self.camera.origin, d, f32::INFINITY, bvh::NONE)
+            .is_some()
     }
 }
 
 impl PixelOracle for PathTracer {
     fn size(&self) -> (u32, u32) {
-        todo!()
+        (self.width, self.height)
     }
-    fn radiance(&self, _p: PixelCoord) -> Rgb {
-        todo!()
+
+    fn radiance(&self, p: PixelCoord) -> Rgb {
+        self.radiance_with(p, self.samples_per_pixel, self.seed)
     }
-    fn radiance_with(&self, _p: PixelCoord, _samples: u32, _seed: u64) -> Rgb {
-        todo!()
+
+    /// The box-filtered mean of `samples` paths, each seeded by hashing (seed, x, y,
+    /// sample index): a pure function of its arguments. Samples that come out NaN or
+    /// infinite are dropped and the mean is taken over the others (never returned).
+    fn radiance_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Rgb {
+        let mut sum = Vec3::ZERO;
+        let mut kept = 0u32;
+        for i in 0..samples {
+            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
+            let v = self.trace_path(p.x, p.y, &mut rng);
+            if v.is_finite() {
+                sum += v;
+                kept += 1;
+            }
+        }
+        if kept < samples {
+            self.dropped
+                .fetch_add(u64::from(samples - kept), Ordering::Relaxed);
+        }
+        if kept == 0 {
+            return Rgb::ZERO;
+        }
+        let mean = sum / kept as f32;
+        // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
+        if mean.is_finite() {
+            mean
+        } else {
+            Rgb::ZERO
+        }
     }
-    fn object_id(&self, _p: PixelCoord) -> ObjectId {
-        todo!()
+
+    fn object_id(&self, p: PixelCoord) -> ObjectId {
+        let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
+        self.geo
+            .object_at(self.camera.origin, d)
+            .unwrap_or(BACKGROUND_ID)
     }
 }

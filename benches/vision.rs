@@ -1,0 +1,87 @@
+//! Full per-pixel vision-model map versus the adaptive block map on one 512×512 pair
+//! (issue #3). `cargo bench --bench vision`. Prints median times, the speed ratio, both mean
+//! distances and their relative difference, pixels evaluated and ContrastStack bytes/pixel.
+//!
+//! Targets (issue #3): full model < 50 ms, adaptive ≥ 5× faster, means within 10 %,
+//! ≤ 64 B/px/image.
+
+use criterion::black_box;
+use glimpse::metric::{self, MetricParams};
+use glimpse::raster::{Image, LinearImage, Rgb};
+use glimpse::vision::{DisplayModel, VisionModel};
+use std::time::Instant;
+
+/// A deterministic "rendered-looking" texture: smooth shading, a few edges, fine detail.
+fn textured(w: u32, h: u32) -> LinearImage {
+    Image::from_fn(w, h, |x, y| {
+        let (fx, fy) = (x as f32, y as f32);
+        let shade = 0.25 + 0.2 * (fx / w as f32) + 0.1 * (fy * 0.02).sin();
+        let checker = if ((x / 32) + (y / 32)) % 2 == 0 { 0.15 } else { 0.0 };
+        let detail = 0.08 * (fx * 0.9).sin() * (fy * 0.7).cos();
+        let v = (shade + checker + detail).max(0.0);
+        Rgb::new(v * 1.1, v, v * 0.8 + 0.05 * ((fx * 0.05).cos() + 1.0))
+    })
+}
+
+/// Per-pixel pseudo-random noise of relative amplitude `amp` (like Monte Carlo noise).
+fn noisy(img: &LinearImage, amp: f32, seed: u64) -> LinearImage {
+    let mut s = seed;
+    img.map(|p| {
+        let mut r = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        let n = 1.0 + amp * 2.0 * r();
+        *p * n
+    })
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() {
+    let (w, h) = (512, 512);
+    let a = textured(w, h);
+    let b = noisy(&a, 0.05, 12345);
+    let display = DisplayModel { peak_luminance: 100.0, black_luminance: 0.5, exposure: 1.0, pixels_per_degree: 28.0 };
+    let t = Instant::now();
+    let model = VisionModel::new(display, w, h);
+    let model_ms = t.elapsed().as_secs_f64() * 1e3;
+    let runs = 11;
+    let (mut t_dec, mut t_full, mut t_adapt) = (Vec::new(), Vec::new(), Vec::new());
+    let mut full_mean = 0.0;
+    let mut adapt = None;
+    for i in 0..runs {
+        let t = Instant::now();
+        let sa = model.decompose(&a).expect("finite");
+        let sb = model.decompose(&b).expect("finite");
+        t_dec.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        let f = metric::full_map(&model, &sa, &sb);
+        t_full.push(t.elapsed().as_secs_f64() * 1e3);
+        full_mean = black_box(f.mean());
+        let t = Instant::now();
+        let m = metric::block_map(&model, &sa, &sb, &[], &MetricParams { homogeneity: 0.8, epsilon: 1.0, seed: i });
+        t_adapt.push(t.elapsed().as_secs_f64() * 1e3);
+        adapt = Some(black_box(m));
+    }
+    let sa = model.decompose(&a).expect("finite");
+    let adapt = adapt.expect("ran");
+    let (dec, full, ad) = (median(t_dec), median(t_full), median(t_adapt));
+    let px = f64::from(w * h);
+    println!("vision bench {w}x{h}, ppd 28, {} bands, {runs} runs (medians), model construction {model_ms:.2} ms", model.bands().len());
+    println!("  decompose both images     {dec:8.2} ms");
+    println!("  full map (per pixel)      {full:8.2} ms   -> full model total {:8.2} ms", dec + full);
+    println!("  adaptive block map        {ad:8.2} ms   -> adaptive total   {:8.2} ms", dec + ad);
+    println!("  speed ratio map only      {:8.2}x", full / ad);
+    println!("  speed ratio incl. decomp  {:8.2}x", (dec + full) / (dec + ad));
+    println!("  mean distance full        {full_mean:8.4} JND");
+    println!("  mean distance adaptive    {:8.4} JND (last run)", adapt.mean());
+    println!("  relative difference       {:8.2} %", 100.0 * (adapt.mean() - full_mean).abs() / full_mean.max(1e-12));
+    println!("  pixels evaluated          full {} / adaptive {} ({:.1} %), {} leaves", w * h, adapt.pixels_evaluated, 100.0 * adapt.pixels_evaluated as f64 / px, adapt.leaves.len());
+    println!("  ContrastStack             {:8.2} bytes/pixel/image", sa.bytes() as f64 / px);
+}

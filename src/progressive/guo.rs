@@ -1,0 +1,165 @@
+//! Guo 1998 baseline pieces (vision-model.md §4.3, §4.4): Mitchell's contrast test as the
+//! classification oracle and the least-discrepancy direction by minimum discrepancy.
+
+use super::complex::{Boundary, ContourPixel};
+use crate::raster::Rgb;
+use crate::scene::ObjectId;
+
+/// Mitchell (1987) contrast thresholds, R/G/B (spec §4.3).
+pub const CONTRAST: [f32; 3] = [0.4, 0.3, 0.6];
+
+/// What the display shows for a linear value: × exposure, clamped to [0, 1] (NaN → 0).
+#[must_use]
+pub fn displayed(c: Rgb, exposure: f32) -> Rgb {
+    let v = c * exposure;
+    Rgb::new(clamp01(v.x), clamp01(v.y), clamp01(v.z))
+}
+
+fn clamp01(v: f32) -> f32 {
+    if v.is_nan() {
+        0.0
+    } else {
+        v.clamp(0.0, 1.0)
+    }
+}
+
+/// Spec §4.3: edge if C_r > 0.4 ∨ C_g > 0.3 ∨ C_b > 0.6 with C = (max−min)/(max+min) over
+/// the samples (displayed linear RGB; C = 0 when max + min = 0), or when the samples hit
+/// different objects (the optional id test, catches same-colour silhouettes).
+#[must_use]
+pub fn is_edge(samples: impl IntoIterator<Item = (Rgb, ObjectId)>, exposure: f32) -> bool {
+    let mut lo = Rgb::splat(f32::INFINITY);
+    let mut hi = Rgb::splat(f32::NEG_INFINITY);
+    let mut first_id = None;
+    let mut ids_differ = false;
+    let mut any = false;
+    for (c, id) in samples {
+        any = true;
+        let d = displayed(c, exposure);
+        lo = lo.min(d);
+        hi = hi.max(d);
+        match first_id {
+            None => first_id = Some(id),
+            Some(f) => ids_differ |= f != id,
+        }
+    }
+    if !any {
+        return false;
+    }
+    if ids_differ {
+        return true;
+    }
+    let c = |h: f32, l: f32| if h + l > 0.0 { (h - l) / (h + l) } else { 0.0 };
+    c(hi.x, lo.x) > CONTRAST[0] || c(hi.y, lo.y) > CONTRAST[1] || c(hi.z, lo.z) > CONTRAST[2]
+}
+
+/// The least-discrepancy direction (spec §4.4, Guo-style variant on a triangle contour):
+/// θ_j = jπ/N, N = max(8, 2s) (s = longest edge, capped at 64 directions for cost [D]);
+/// D(θ) = mean over contour pixels p of ‖I(p) − I_∂(q_θ(p))‖ where q is the other end of
+/// the chord through p (chords shorter than 1 px skipped); argmin, ties → smallest j.
+/// `colours` are displayed values. `None` when no direction has a usable chord.
+#[must_use]
+pub fn least_discrepancy_direction(
+    boundary: &Boundary,
+    contour: &[ContourPixel],
+    colours: &[Rgb],
+    longest_edge: f64,
+) -> Option<(f64, f64)> {
+    let n_theta = ((2.0 * longest_edge).ceil() as usize).clamp(8, 64);
+    let mut best: Option<(f64, (f64, f64))> = None;
+    for j in 0..n_theta {
+        let th = j as f64 * std::f64::consts::PI / n_theta as f64;
+        let d = (th.cos(), th.sin());
+        let mut sum = 0.0f64;
+        let mut count = 0usize;
+        for (c, &col) in contour.iter().zip(colours) {
+            let x = (f64::from(c.p.x), f64::from(c.p.y));
+            let Some((lo, hi)) = boundary.chord(x, d) else {
+                continue;
+            };
+            let far = if hi.0.abs() >= lo.0.abs() { hi } else { lo };
+            if far.0.abs() < 1.0 {
+                continue;
+            }
+            sum += f64::from((col - boundary.at(far.1, far.2)).length());
+            count += 1;
+        }
+        if count == 0 {
+            continue;
+        }
+        let disc = sum / count as f64;
+        if best.is_none_or(|b| disc < b.0) {
+            best = Some((disc, d));
+        }
+    }
+    best.map(|b| b.1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::progressive::complex::{contour, Stamp};
+    use crate::progressive::mesh::Tri;
+    use crate::raster::PixelCoord;
+
+    #[test]
+    fn mitchell_contrast_thresholds() {
+        let g = |v: f32| (Rgb::splat(v), 0u32);
+        assert!(!is_edge([g(0.5), g(0.5), g(0.5)], 1.0));
+        // C = (0.5-0.3)/(0.8) = 0.25 on every channel: below all three thresholds.
+        assert!(!is_edge([g(0.5), g(0.3)], 1.0));
+        // Green only: (0.6-0.3)/0.9 = 0.333 > 0.3.
+        assert!(is_edge(
+            [(Rgb::new(0.5, 0.6, 0.5), 0), (Rgb::new(0.5, 0.3, 0.5), 0)],
+            1.0
+        ));
+        // Black samples: C = 0, not an edge; saturated samples: clamped equal, not an edge.
+        assert!(!is_edge([g(0.0), g(0.0)], 1.0));
+        assert!(!is_edge([g(5.0), g(50.0)], 1.0));
+        // Exposure matters: 0.01 vs 0.001 is contrast 0.82 whatever the exposure, but
+        // 2.0 vs 1.0 saturate at exposure 1 and differ at exposure 0.1.
+        assert!(!is_edge([g(2.0), g(1.0)], 1.0));
+        assert!(is_edge([g(2.0), g(0.5)], 0.1));
+        // Same colour, different object.
+        assert!(is_edge([(Rgb::ONE * 0.5, 1), (Rgb::ONE * 0.5, 2)], 1.0));
+        assert!(!is_edge(std::iter::empty(), 1.0));
+    }
+
+    #[test]
+    fn ldd_follows_a_diagonal_step() {
+        // Step along the line x = y: the least-discrepancy direction is the diagonal (π/4).
+        let p = PixelCoord::new;
+        let t = Tri {
+            v: [p(0, 0), p(12, 0), p(12, 12)],
+        };
+        let t = if t.area2() > 0.0 {
+            t
+        } else {
+            Tri {
+                v: [t.v[0], t.v[2], t.v[1]],
+            }
+        };
+        let f = |q: PixelCoord| {
+            if q.x as i64 - q.y as i64 >= 3 {
+                Rgb::ONE
+            } else {
+                Rgb::ZERO
+            }
+        };
+        {
+            let tri = t;
+            let mut st = Stamp::new(13 * 13);
+            let mut c = Vec::new();
+            contour(&tri, 13, &mut st, &mut c);
+            let cols: Vec<Rgb> = c.iter().map(|q| f(q.p)).collect();
+            let b = Boundary::new(&tri, &c, f);
+            let d =
+                least_discrepancy_direction(&b, &c, &cols, tri.longest_edge()).expect("direction");
+            let ang = d.1.atan2(d.0).rem_euclid(std::f64::consts::PI);
+            assert!(
+                (ang - std::f64::consts::FRAC_PI_4).abs() < 0.2,
+                "angle {ang}"
+            );
+        }
+    }
+}

@@ -1,0 +1,318 @@
+//! Delaunay triangulation of the traced samples (F&P04 §4.2) and Gouraud shading.
+//!
+//! Vertices sit at pixel centres, i.e. at integer coordinates, so spade's exact predicates
+//! see only integers and barycentric numerators are exact in f64. Every traced pixel is a
+//! vertex: the triangulation is the Delaunay of everything traced so far, so a complex
+//! triangle whose contour was traced is subdivided along that contour in the next
+//! iteration ("a complex triangle is of course subdivided during the next iteration").
+
+use crate::raster::{PixelCoord, Rgb};
+use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
+
+/// A triangulation vertex: one traced pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct Vertex {
+    pub x: u32,
+    pub y: u32,
+}
+
+impl HasPosition for Vertex {
+    type Scalar = f64;
+    fn position(&self) -> Point2<f64> {
+        Point2::new(f64::from(self.x), f64::from(self.y))
+    }
+}
+
+/// One triangle, vertices counter-clockwise in (x, y) with y as stored (spade's order).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tri {
+    pub v: [PixelCoord; 3],
+}
+
+impl Tri {
+    /// Longest edge in pixels: the "largest dimension" of F&P04 §4.2 (spec §4.4 guard).
+    #[must_use]
+    pub fn longest_edge(&self) -> f64 {
+        let mut m: f64 = 0.0;
+        for i in 0..3 {
+            let (a, b) = (self.v[i], self.v[(i + 1) % 3]);
+            let dx = f64::from(a.x) - f64::from(b.x);
+            let dy = f64::from(a.y) - f64::from(b.y);
+            m = m.max((dx * dx + dy * dy).sqrt());
+        }
+        m
+    }
+
+    #[must_use]
+    pub fn centroid(&self) -> (f64, f64) {
+        let x = self.v.iter().map(|p| f64::from(p.x)).sum::<f64>() / 3.0;
+        let y = self.v.iter().map(|p| f64::from(p.y)).sum::<f64>() / 3.0;
+        (x, y)
+    }
+
+    /// Twice the signed area (positive for the counter-clockwise order of spade).
+    #[must_use]
+    pub fn area2(&self) -> f64 {
+        let [a, b, c] = self.v.map(|p| (f64::from(p.x), f64::from(p.y)));
+        (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0)
+    }
+
+    /// Barycentric weights of pixel centre (x, y), or `None` if it lies outside.
+    /// Integer inputs make the numerators exact, so shared edges are decided consistently.
+    #[must_use]
+    pub fn barycentric(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        let area = self.area2();
+        if area == 0.0 {
+            return None;
+        }
+        let [a, b, c] = self.v.map(|p| (f64::from(p.x), f64::from(p.y)));
+        let edge = |p: (f64, f64), q: (f64, f64)| (q.0 - p.0) * (y - p.1) - (q.1 - p.1) * (x - p.0);
+        let w0 = edge(b, c) / area;
+        let w1 = edge(c, a) / area;
+        let w2 = edge(a, b) / area;
+        (w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0).then_some([w0, w1, w2])
+    }
+}
+
+/// The incremental Delaunay triangulation of the traced pixels.
+pub struct Triangulator {
+    dt: DelaunayTriangulation<Vertex>,
+}
+
+impl Default for Triangulator {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Triangulator {
+    #[must_use]
+    pub fn new() -> Self {
+        Self {
+            dt: DelaunayTriangulation::new(),
+        }
+    }
+
+    /// Inserts traced pixels. Duplicates are harmless (spade keeps one vertex); an
+    /// insertion error (impossible for in-range integer coordinates) skips the point: the
+    /// pixel is traced anyway and keeps its traced value.
+    pub fn insert(&mut self, pixels: &[PixelCoord]) -> usize {
+        let mut failed = 0;
+        for p in pixels {
+            if self.dt.insert(Vertex { x: p.x, y: p.y }).is_err() {
+                failed += 1;
+            }
+        }
+        failed
+    }
+
+    #[must_use]
+    pub fn num_vertices(&self) -> usize {
+        self.dt.num_vertices()
+    }
+
+    /// The inner triangles (none when every vertex is collinear).
+    #[must_use]
+    pub fn triangles(&self) -> Vec<Tri> {
+        self.dt
+            .inner_faces()
+            .map(|f| {
+                let v = f.vertices().map(|h| {
+                    let d = h.data();
+                    PixelCoord::new(d.x, d.y)
+                });
+                Tri { v }
+            })
+            .collect()
+    }
+
+    /// Nearest vertex to a pixel (fallback fill of pixels no triangle covers).
+    #[must_use]
+    pub fn nearest(&self, x: u32, y: u32) -> Option<PixelCoord> {
+        self.dt
+            .nearest_neighbor(Point2::new(f64::from(x), f64::from(y)))
+            .map(|h| PixelCoord::new(h.data().x, h.data().y))
+    }
+}
+
+/// Which triangle owns each pixel, and each triangle's pixels grouped (counting sort).
+pub struct Raster {
+    pub width: u32,
+    pub height: u32,
+    /// Owner triangle per pixel, `u32::MAX` if none covers it.
+    pub owner: Vec<u32>,
+    /// Pixel indices grouped by triangle: triangle t owns `order[start[t]..start[t+1]]`.
+    pub order: Vec<u32>,
+    pub start: Vec<u32>,
+}
+
+impl Raster {
+    /// The pixel indices owned by triangle `t`.
+    #[must_use]
+    pub fn pixels_of(&self, t: usize) -> &[u32] {
+        &self.order[self.start[t] as usize..self.start[t + 1] as usize]
+    }
+}
+
+/// Rasterises by bounding box: O(Σ bounding-box areas) ≈ O(pixels), never pixels × triangles.
+/// A pixel centre on a shared edge goes to the first triangle that covers it, so every
+/// covered pixel has exactly one owner.
+#[must_use]
+pub fn rasterise(tris: &[Tri], width: u32, height: u32) -> Raster {
+    let n = width as usize * height as usize;
+    let mut owner = vec![u32::MAX; n];
+    let mut count = vec![0u32; tris.len() + 1];
+    for (t, tri) in tris.iter().enumerate() {
+        let x0 = tri.v.iter().map(|p| p.x).min().unwrap_or(0);
+        let x1 = tri
+            .v
+            .iter()
+            .map(|p| p.x)
+            .max()
+            .unwrap_or(0)
+            .min(width.saturating_sub(1));
+        let y0 = tri.v.iter().map(|p| p.y).min().unwrap_or(0);
+        let y1 = tri
+            .v
+            .iter()
+            .map(|p| p.y)
+            .max()
+            .unwrap_or(0)
+            .min(height.saturating_sub(1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let i = y as usize * width as usize + x as usize;
+                if owner[i] == u32::MAX && tri.barycentric(f64::from(x), f64::from(y)).is_some() {
+                    owner[i] = t as u32;
+                    count[t] += 1;
+                }
+            }
+        }
+    }
+    let mut start = vec![0u32; tris.len() + 1];
+    for t in 0..tris.len() {
+        start[t + 1] = start[t] + count[t];
+    }
+    let mut fill = start.clone();
+    let mut order = vec![0u32; start[tris.len()] as usize];
+    for (i, &o) in owner.iter().enumerate() {
+        if o != u32::MAX {
+            order[fill[o as usize] as usize] = i as u32;
+            fill[o as usize] += 1;
+        }
+    }
+    Raster {
+        width,
+        height,
+        owner,
+        order,
+        start,
+    }
+}
+
+/// Gouraud shading (F&P04 §4.2): barycentric interpolation of the vertex radiances over
+/// each triangle's untraced pixels; traced pixels keep their traced value. Pixels no
+/// triangle covers take their nearest vertex's value.
+pub fn gouraud(
+    tris: &[Tri],
+    raster: &Raster,
+    radiance: &[Rgb],
+    traced: &[bool],
+    tri: &Triangulator,
+    out: &mut [Rgb],
+) {
+    let w = raster.width as usize;
+    for (t, tr) in tris.iter().enumerate() {
+        let c = tr.v.map(|p| radiance[p.y as usize * w + p.x as usize]);
+        for &i in raster.pixels_of(t) {
+            let i = i as usize;
+            if traced[i] {
+                out[i] = radiance[i];
+                continue;
+            }
+            let (x, y) = ((i % w) as f64, (i / w) as f64);
+            out[i] = match tr.barycentric(x, y) {
+                Some(b) => c[0] * b[0] as f32 + c[1] * b[1] as f32 + c[2] * b[2] as f32,
+                None => c[0],
+            };
+        }
+    }
+    for (i, o) in raster.owner.iter().enumerate() {
+        if *o != u32::MAX {
+            continue;
+        }
+        out[i] = if traced[i] {
+            radiance[i]
+        } else {
+            match tri.nearest((i % w) as u32, (i / w) as u32) {
+                Some(p) => radiance[p.y as usize * w + p.x as usize],
+                None => Rgb::ZERO,
+            }
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn corners(w: u32, h: u32) -> Vec<PixelCoord> {
+        vec![
+            PixelCoord::new(0, 0),
+            PixelCoord::new(w - 1, 0),
+            PixelCoord::new(0, h - 1),
+            PixelCoord::new(w - 1, h - 1),
+        ]
+    }
+
+    #[test]
+    fn corners_cover_every_pixel_exactly_once() {
+        let (w, h) = (7u32, 5u32);
+        let mut t = Triangulator::new();
+        t.insert(&corners(w, h));
+        t.insert(&[PixelCoord::new(3, 2)]);
+        let tris = t.triangles();
+        assert_eq!(tris.len(), 4);
+        let r = rasterise(&tris, w, h);
+        assert!(r.owner.iter().all(|&o| o != u32::MAX));
+        assert_eq!(r.order.len(), (w * h) as usize);
+        for tr in &tris {
+            assert!(tr.area2() > 0.0, "spade faces are counter-clockwise");
+        }
+    }
+
+    #[test]
+    fn gouraud_reproduces_a_linear_field_exactly() {
+        let (w, h) = (9u32, 6u32);
+        let f = |x: u32, y: u32| Rgb::new(x as f32, y as f32, (2 * x + 3 * y) as f32);
+        let mut t = Triangulator::new();
+        let pts = corners(w, h);
+        t.insert(&pts);
+        let tris = t.triangles();
+        let r = rasterise(&tris, w, h);
+        let n = (w * h) as usize;
+        let mut rad = vec![Rgb::ZERO; n];
+        let mut traced = vec![false; n];
+        for p in &pts {
+            let i = (p.y * w + p.x) as usize;
+            rad[i] = f(p.x, p.y);
+            traced[i] = true;
+        }
+        let mut out = vec![Rgb::splat(-1.0); n];
+        gouraud(&tris, &r, &rad, &traced, &t, &mut out);
+        for y in 0..h {
+            for x in 0..w {
+                let d = out[(y * w + x) as usize] - f(x, y);
+                assert!(d.abs().max_element() < 1e-4, "({x},{y}) {d:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn collinear_points_give_no_triangles() {
+        let mut t = Triangulator::new();
+        t.insert(&(0..10).map(|x| PixelCoord::new(x, 0)).collect::<Vec<_>>());
+        assert!(t.triangles().is_empty());
+        assert_eq!(t.nearest(4, 0), Some(PixelCoord::new(4, 0)));
+    }
+}

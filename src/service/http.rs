@@ -1,0 +1,515 @@
+//! The REST surface of service-api.md: the router, its limit layers, our extractors and
+//! [`ApiError`], the only type that knows HTTP status codes.
+//!
+//! Every error leaves as `{"error": {"code", "message", "path"}}`: our handlers return
+//! [`ApiError`]; our extractors ([`Json`], [`JobId`], [`Params`], [`SceneBody`]) map
+//! axum's rejections to it; and [`json_errors`] rewrites whatever else axum or tower-http
+//! produce on their own (unknown route, wrong method, body over the limit) into the
+//! same shape, so a client never has to parse plain text.
+
+use super::jobs::{CancelOutcome, DeleteOutcome, Jobs, SubmitError};
+use super::metrics::Metrics;
+use super::store::{JobRecord, JobState, StoreError};
+use super::{auth, examples, ws};
+use crate::progressive::layers::LAYERS;
+use crate::scene::{parse_scene, SceneErrorKind, SceneOrigin};
+use axum::extract::{FromRequest, FromRequestParts, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::Router;
+use bytes::Bytes;
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+use serde_json::json;
+use std::collections::HashMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use tokio_util::sync::CancellationToken;
+use uuid::Uuid;
+
+/// Shared by every handler.
+#[derive(Clone)]
+pub struct AppState {
+    pub jobs: Jobs,
+    pub metrics: Arc<Metrics>,
+    /// Bearer token for `/v1` (None: open).
+    pub token: Option<Arc<str>>,
+    /// Fires on shutdown: open streams close.
+    pub stop: CancellationToken,
+    pub max_body_bytes: usize,
+}
+
+// ---------------------------------------------------------------------------------------
+// Errors
+
+/// The stable machine-readable error codes of service-api.md "Errors".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    InvalidJson,
+    InvalidScene,
+    InvalidParameter,
+    TooLarge,
+    NotFound,
+    MethodNotAllowed,
+    Conflict,
+    QueueFull,
+    Unauthorized,
+    Unavailable,
+    Internal,
+}
+
+impl ErrorCode {
+    #[must_use]
+    pub fn status(self) -> StatusCode {
+        match self {
+            ErrorCode::InvalidJson | ErrorCode::InvalidParameter => StatusCode::BAD_REQUEST,
+            ErrorCode::InvalidScene => StatusCode::UNPROCESSABLE_ENTITY,
+            ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            ErrorCode::NotFound => StatusCode::NOT_FOUND,
+            ErrorCode::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
+            ErrorCode::Conflict => StatusCode::CONFLICT,
+            ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
+            ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
+            ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+}
+
+/// An error response. Internal causes are logged, not shown (the message stays generic).
+#[derive(Debug)]
+pub struct ApiError {
+    pub code: ErrorCode,
+    pub message: String,
+    /// JSON path of the field at fault (scene errors), or the query parameter; "" if none.
+    pub path: String,
+    /// Further problems of a refused scene (the first is `message`/`path`).
+    pub problems: Vec<crate::scene::Problem>,
+    pub retry_after_s: Option<u32>,
+}
+
+impl ApiError {
+    pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
+        Self { code, message: message.into(), path: String::new(), problems: Vec::new(), retry_after_s: None }
+    }
+
+    #[must_use]
+    pub fn at(mut self, path: impl Into<String>) -> Self {
+        self.path = path.into();
+        self
+    }
+
+    pub fn not_found_job(id: &str) -> Self {
+        Self::new(ErrorCode::NotFound, format!("no job with id {id:?}"))
+    }
+
+    pub fn internal(context: &str, e: &dyn std::fmt::Display) -> Self {
+        tracing::error!("{context}: {e}");
+        Self::new(ErrorCode::Internal, format!("internal error while {context}; see the server log"))
+    }
+
+    /// The JSON body, also used for stream `error` messages.
+    #[must_use]
+    pub fn body(&self) -> serde_json::Value {
+        let mut e = json!({ "code": self.code, "message": self.message, "path": self.path });
+        if self.problems.len() > 1 {
+            e["problems"] = json!(self.problems);
+        }
+        json!({ "error": e })
+    }
+}
+
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> Self {
+        Self::internal("reading the job store", &e)
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let mut res = (self.code.status(), axum::Json(self.body())).into_response();
+        if let Some(s) = self.retry_after_s {
+            res.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(s));
+        }
+        res
+    }
+}
+
+/// Rewrites error responses that did not come from [`ApiError`] (axum's 404/405, the body
+/// limit layer's 413, WebSocket upgrade refusals) into our JSON shape.
+pub async fn json_errors(State(st): State<AppState>, res: Response) -> Response {
+    let status = res.status();
+    if !(status.is_client_error() || status.is_server_error()) {
+        return res;
+    }
+    st.metrics.http_errors.fetch_add(1, Ordering::Relaxed);
+    let is_json = res
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if is_json {
+        return res;
+    }
+    let (code, message) = match status {
+        StatusCode::NOT_FOUND => (ErrorCode::NotFound, "no such route".to_owned()),
+        StatusCode::METHOD_NOT_ALLOWED => {
+            (ErrorCode::MethodNotAllowed, "this method is not allowed on this route".to_owned())
+        }
+        StatusCode::PAYLOAD_TOO_LARGE => (
+            ErrorCode::TooLarge,
+            format!("the request body is larger than the limit of {} bytes", st.max_body_bytes),
+        ),
+        s if s.is_server_error() => (ErrorCode::Internal, "internal error; see the server log".to_owned()),
+        s => (
+            ErrorCode::InvalidParameter,
+            format!("bad request ({})", s.canonical_reason().unwrap_or("client error")),
+        ),
+    };
+    let (mut parts, _) = res.into_parts();
+    parts.headers.remove(header::CONTENT_LENGTH);
+    parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    let body = ApiError::new(code, message).body().to_string();
+    Response::from_parts(parts, axum::body::Body::from(body))
+}
+
+// ---------------------------------------------------------------------------------------
+// Extractors
+
+/// `Json<T>` with our rejection: unreadable JSON is `400 invalid_json` with the path where
+/// deserialisation failed (serde_path_to_error), an oversized body `413 too_large`.
+pub struct Json<T>(pub T);
+
+impl<T: DeserializeOwned, S: Send + Sync> FromRequest<S> for Json<T> {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
+        let bytes = read_body(req, state).await?;
+        let de = &mut serde_json::Deserializer::from_slice(&bytes);
+        let v = serde_path_to_error::deserialize(de).map_err(|e| {
+            let path = e.path().to_string();
+            ApiError::new(ErrorCode::InvalidJson, format!("unreadable JSON: {}", e.inner()))
+                .at(if path == "." { String::new() } else { path })
+        })?;
+        Ok(Json(v))
+    }
+}
+
+impl<T: Serialize> IntoResponse for Json<T> {
+    fn into_response(self) -> Response {
+        axum::Json(self.0).into_response()
+    }
+}
+
+async fn read_body<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, ApiError> {
+    Bytes::from_request(req, state).await.map_err(|r| {
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::new(ErrorCode::TooLarge, "the request body is larger than the server's limit")
+        } else {
+            ApiError::new(ErrorCode::InvalidJson, format!("could not read the request body: {}", r.body_text()))
+        }
+    })
+}
+
+/// The raw body of `POST /v1/jobs`. Any (or no) content type is accepted: the document is
+/// JSON by contract and `curl -d @scene.json` sends form encoding by default.
+pub struct SceneBody(pub String);
+
+impl FromRequest<AppState> for SceneBody {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &AppState) -> Result<Self, Self::Rejection> {
+        let bytes = read_body(req, state).await.map_err(|mut e| {
+            if e.code == ErrorCode::TooLarge {
+                e.message = format!("the request body is larger than the limit of {} bytes", state.max_body_bytes);
+            }
+            e
+        })?;
+        if bytes.iter().all(u8::is_ascii_whitespace) {
+            return Err(ApiError::new(ErrorCode::InvalidJson, "the request body is empty; send a scene document"));
+        }
+        let text = String::from_utf8(bytes.to_vec())
+            .map_err(|e| ApiError::new(ErrorCode::InvalidJson, format!("the body is not UTF-8: {e}")))?;
+        Ok(SceneBody(text))
+    }
+}
+
+/// A job id from the path. Anything that is not a UUID is simply a job that does not
+/// exist (404), never a 400: ids are opaque to clients.
+pub struct JobId(pub Uuid);
+
+impl<S: Send + Sync> FromRequestParts<S> for JobId {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
+        let axum::extract::Path(raw) = axum::extract::Path::<String>::from_request_parts(parts, state)
+            .await
+            .map_err(|_| ApiError::new(ErrorCode::NotFound, "no such job"))?;
+        Uuid::parse_str(&raw).map(JobId).map_err(|_| ApiError::not_found_job(&raw))
+    }
+}
+
+/// Query parameters as a map (unknown ones are ignored: `token=` rides along).
+pub struct Params(pub HashMap<String, String>);
+
+impl<S: Send + Sync> FromRequestParts<S> for Params {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
+        axum::extract::Query::<HashMap<String, String>>::from_request_parts(parts, state)
+            .await
+            .map(|q| Params(q.0))
+            .map_err(|e| ApiError::new(ErrorCode::InvalidParameter, format!("unreadable query string: {e}")))
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Router
+
+/// The whole application; `run` serves it, tests may call it directly.
+pub fn router(state: AppState) -> Router {
+    let v1 = Router::new()
+        .route("/jobs", post(create_job).get(list_jobs))
+        .route("/jobs/{id}", get(get_job).delete(delete_job))
+        .route("/jobs/{id}/cancel", post(cancel_job))
+        .route("/jobs/{id}/frame", get(get_frame))
+        .route("/jobs/{id}/stream", get(ws::stream))
+        .route("/examples", get(examples::list))
+        .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_token));
+    let max_body = state.max_body_bytes;
+    Router::new()
+        .route("/", get(viewer))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .nest("/v1", v1)
+        .fallback(not_found)
+        // Limits in one place: the body limit (tower-http rejects early on
+        // Content-Length; axum's own limit covers chunked bodies), then the error mapper
+        // outermost so even layer-made responses leave as JSON.
+        .layer(axum::extract::DefaultBodyLimit::max(max_body))
+        .layer(tower_http::limit::RequestBodyLimitLayer::new(max_body))
+        .layer(axum::middleware::map_response_with_state(state.clone(), json_errors))
+        .with_state(state)
+}
+
+async fn not_found() -> ApiError {
+    ApiError::new(ErrorCode::NotFound, "no such route")
+}
+
+async fn viewer() -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, "text/html; charset=utf-8"), (header::CACHE_CONTROL, "no-cache")],
+        super::viewer::INDEX_HTML,
+    )
+}
+
+async fn healthz() -> impl IntoResponse {
+    axum::Json(json!({ "status": "ok" }))
+}
+
+async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
+    let text = super::metrics::render(&st.metrics, &st.jobs).await;
+    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], text)
+}
+
+// ---------------------------------------------------------------------------------------
+// Handlers
+
+async fn create_job(State(st): State<AppState>, SceneBody(text): SceneBody) -> Result<Response, ApiError> {
+    // Validation can be heavy (8 MiB of mesh): off the async runtime. A panic inside the
+    // parser becomes a 500, never a dead server.
+    let limits = *st.jobs.limits();
+    let (text, parsed) = tokio::task::spawn_blocking(move || {
+        let r = parse_scene(&text, &SceneOrigin::Request, &limits);
+        (text, r)
+    })
+    .await
+    .map_err(|e| ApiError::internal("validating the scene", &e))?;
+    let scene = parsed.map_err(|e| {
+        let code = match e.kind {
+            SceneErrorKind::InvalidJson => ErrorCode::InvalidJson,
+            SceneErrorKind::InvalidScene => ErrorCode::InvalidScene,
+            SceneErrorKind::TooLarge => ErrorCode::TooLarge,
+        };
+        let first = e.problems.first();
+        let mut err = ApiError::new(code, first.map_or_else(|| "invalid scene".to_owned(), |p| p.message.clone()))
+            .at(first.map(|p| p.path.clone()).unwrap_or_default());
+        err.problems = e.problems;
+        err
+    })?;
+    let name = if scene.name.trim().is_empty() { "untitled".to_owned() } else { scene.name.clone() };
+    let job = st.jobs.submit(&name, &text).await.map_err(|e| match e {
+        SubmitError::QueueFull(n) => {
+            let mut err = ApiError::new(
+                ErrorCode::QueueFull,
+                format!("the queue is full ({n} jobs waiting); retry later"),
+            );
+            err.retry_after_s = Some(retry_after(n));
+            err
+        }
+        SubmitError::ShuttingDown => {
+            let mut err = ApiError::new(ErrorCode::Unavailable, "the server is shutting down; retry later");
+            err.retry_after_s = Some(5);
+            err
+        }
+        SubmitError::Store(e) => ApiError::internal("storing the job", &e),
+    })?;
+    let mut headers = HeaderMap::new();
+    if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
+        headers.insert(header::LOCATION, v);
+    }
+    Ok((StatusCode::CREATED, headers, Json(job)).into_response())
+}
+
+/// Seconds to wait before retrying a full queue: grows with the backlog, 1 s to 60 s.
+fn retry_after(waiting: usize) -> u32 {
+    u32::try_from(waiting / 8).unwrap_or(u32::MAX).clamp(1, 60)
+}
+
+/// `?limit=` default and maximum (service-api.md).
+const LIST_DEFAULT: u32 = 50;
+const LIST_MAX: u32 = 500;
+
+#[derive(Serialize)]
+struct JobList {
+    jobs: Vec<JobRecord>,
+}
+
+async fn list_jobs(State(st): State<AppState>, Params(q): Params) -> Result<Json<JobList>, ApiError> {
+    let state = match q.get("state") {
+        None => None,
+        Some(s) => Some(JobState::parse(s).ok_or_else(|| {
+            ApiError::new(
+                ErrorCode::InvalidParameter,
+                format!("unknown state {s:?}; use queued, running, succeeded, failed or cancelled"),
+            )
+            .at("state")
+        })?),
+    };
+    let limit = match q.get("limit") {
+        None => LIST_DEFAULT,
+        Some(s) => match s.parse::<u32>() {
+            Ok(n) if (1..=LIST_MAX).contains(&n) => n,
+            _ => {
+                return Err(ApiError::new(
+                    ErrorCode::InvalidParameter,
+                    format!("limit must be an integer from 1 to {LIST_MAX}, got {s:?}"),
+                )
+                .at("limit"))
+            }
+        },
+    };
+    Ok(Json(JobList { jobs: st.jobs.list(state, limit).await? }))
+}
+
+async fn get_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Json<JobRecord>, ApiError> {
+    st.jobs.get(id).await?.map(Json).ok_or_else(|| ApiError::not_found_job(&id.to_string()))
+}
+
+async fn cancel_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
+    match st.jobs.cancel(id).await? {
+        CancelOutcome::NotFound => Err(ApiError::not_found_job(&id.to_string())),
+        CancelOutcome::AlreadyFinished(j) => Err(ApiError::new(
+            ErrorCode::Conflict,
+            format!("job {id} is already {}; nothing to cancel", j.state.as_str()),
+        )),
+        CancelOutcome::Accepted(j) => Ok((StatusCode::ACCEPTED, Json(j)).into_response()),
+    }
+}
+
+async fn delete_job(State(st): State<AppState>, JobId(id): JobId) -> Result<StatusCode, ApiError> {
+    match st.jobs.delete(id).await? {
+        DeleteOutcome::NotFound => Err(ApiError::not_found_job(&id.to_string())),
+        DeleteOutcome::NotFinished(j) => Err(ApiError::new(
+            ErrorCode::Conflict,
+            format!("job {id} is still {}; cancel it first", j.state.as_str()),
+        )),
+        DeleteOutcome::Deleted => Ok(StatusCode::NO_CONTENT),
+    }
+}
+
+async fn get_frame(
+    State(st): State<AppState>,
+    JobId(id): JobId,
+    Params(q): Params,
+) -> Result<Response, ApiError> {
+    let layer = q.get("layer").map_or("image", String::as_str);
+    let Some(layer) = LAYERS.iter().copied().find(|l| *l == layer) else {
+        return Err(ApiError::new(
+            ErrorCode::InvalidParameter,
+            format!("unknown layer {layer:?}; use one of {}", LAYERS.join(", ")),
+        )
+        .at("layer"));
+    };
+    let exr = match q.get("format").map(String::as_str) {
+        None | Some("png") => false,
+        Some("exr") => true,
+        Some(f) => {
+            return Err(ApiError::new(ErrorCode::InvalidParameter, format!("unknown format {f:?}; use png or exr"))
+                .at("format"))
+        }
+    };
+    if exr && layer != "image" {
+        return Err(ApiError::new(
+            ErrorCode::InvalidParameter,
+            "format=exr is only available for the image layer (the linear HDR radiance)",
+        )
+        .at("format"));
+    }
+    let no_frame = || ApiError::new(ErrorCode::NotFound, format!("job {id} has no frame yet"));
+    let missing_layer = || ApiError::new(ErrorCode::NotFound, format!("this frame has no {layer} layer")).at("layer");
+    let bytes: Vec<u8> = if let Some(live) = st.jobs.live(id) {
+        let lf = live.snapshot().frame.clone().ok_or_else(no_frame)?;
+        if !exr && layer == "image" {
+            lf.image_png().await.map_err(|e| ApiError::internal("encoding a frame", &e))?.to_vec()
+        } else {
+            let layer = layer.to_owned();
+            tokio::task::spawn_blocking(move || {
+                if exr {
+                    crate::raster::encode_exr(&lf.frame.image).map(Some).map_err(|e| e.to_string())
+                } else {
+                    lf.encode_layer_blocking(&layer)
+                }
+            })
+            .await
+            .map_err(|e| ApiError::internal("encoding a frame", &e))?
+            .map_err(|e| ApiError::internal("encoding a frame", &e))?
+            .ok_or_else(missing_layer)?
+        }
+    } else {
+        let job = st.jobs.store().get(id).await?.ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
+        if !job.has_frame {
+            return Err(no_frame());
+        }
+        let path = st.jobs.store().layer_path(id, layer, exr).ok_or_else(missing_layer)?;
+        match tokio::fs::read(&path).await {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer()),
+            Err(e) => return Err(ApiError::internal("reading a stored frame", &e)),
+        }
+    };
+    let ctype = if exr { "image/x-exr" } else { "image/png" };
+    Ok(([(header::CONTENT_TYPE, ctype), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_body_has_code_message_path() {
+        let e = ApiError::new(ErrorCode::QueueFull, "full").at("x");
+        assert_eq!(e.body(), json!({"error": {"code": "queue_full", "message": "full", "path": "x"}}));
+        assert_eq!(ErrorCode::QueueFull.status(), StatusCode::TOO_MANY_REQUESTS);
+        assert_eq!(ErrorCode::InvalidScene.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    }
+
+    #[test]
+    fn retry_after_is_bounded() {
+        assert_eq!(retry_after(0), 1);
+        assert_eq!(retry_after(64), 8);
+        assert_eq!(retry_after(usize::MAX), 60);
+    }
+}

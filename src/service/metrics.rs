@@ -1,0 +1,94 @@
+//! Prometheus text metrics (`GET /metrics`, service-api.md): jobs by state, queue depth,
+//! pixels traced, render seconds, WebSocket watchers. Counters are plain atomics updated
+//! by the workers and the stream handlers; job counts come from the store when scraped.
+
+use super::jobs::Jobs;
+use super::store::JobState;
+use std::fmt::Write as _;
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
+
+#[derive(Debug, Default)]
+pub struct Metrics {
+    pub jobs_submitted: AtomicU64,
+    pub jobs_running: AtomicI64,
+    pub pixels_traced: AtomicU64,
+    /// Render wall time in microseconds (an integer counter; exported in seconds).
+    render_micros: AtomicU64,
+    pub ws_watchers: AtomicI64,
+    pub http_errors: AtomicU64,
+}
+
+impl Metrics {
+    pub fn add_render_seconds(&self, s: f64) {
+        if s.is_finite() && s > 0.0 {
+            self.render_micros.fetch_add((s * 1e6) as u64, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Decrements the watcher gauge when a stream ends, however it ends.
+pub struct WatcherGuard<'a>(&'a Metrics);
+
+impl<'a> WatcherGuard<'a> {
+    pub fn new(m: &'a Metrics) -> Self {
+        m.ws_watchers.fetch_add(1, Ordering::Relaxed);
+        Self(m)
+    }
+}
+
+impl Drop for WatcherGuard<'_> {
+    fn drop(&mut self) {
+        self.0.ws_watchers.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// The exposition text (format 0.0.4).
+pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
+    let mut out = String::new();
+    let counts = jobs.store().count_by_state().await.unwrap_or_default();
+    let _ = writeln!(out, "# HELP glimpse_jobs Jobs in the store, by state.");
+    let _ = writeln!(out, "# TYPE glimpse_jobs gauge");
+    for st in JobState::ALL {
+        let n = counts.iter().find(|(s, _)| *s == st).map_or(0, |(_, n)| *n);
+        let _ = writeln!(out, "glimpse_jobs{{state=\"{}\"}} {n}", st.as_str());
+    }
+    let lines: [(&str, &str, &str, String); 6] = [
+        ("glimpse_queue_depth", "gauge", "Jobs waiting for a worker.", jobs.queue_depth().to_string()),
+        (
+            "glimpse_jobs_submitted_total",
+            "counter",
+            "Jobs accepted since start.",
+            m.jobs_submitted.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_pixels_traced_total",
+            "counter",
+            "Pixels traced by all renders since start.",
+            m.pixels_traced.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_render_seconds_total",
+            "counter",
+            "Wall time spent rendering since start.",
+            format!("{:.6}", m.render_micros.load(Ordering::Relaxed) as f64 / 1e6),
+        ),
+        (
+            "glimpse_websocket_watchers",
+            "gauge",
+            "Open job streams.",
+            m.ws_watchers.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_http_errors_total",
+            "counter",
+            "Error responses sent.",
+            m.http_errors.load(Ordering::Relaxed).to_string(),
+        ),
+    ];
+    for (name, kind, help, value) in lines {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
+    }
+    out
+}

@@ -1,0 +1,357 @@
+//! Durable job records (SQLite through sqlx, WAL mode) and the final images beside them.
+//!
+//! Layout under the data folder:
+//! - `glimpse.db` (+ `-wal`, `-shm`): the `jobs` table of `migrations/0001_init.sql`;
+//! - `jobs/<id>/{image,samples,distance,classes}.png` and `jobs/<id>/image.exr`: the last
+//!   frame of a finished (or cancelled) job. File names derive from the job id only (a
+//!   parsed UUID), never from user input, so no request can choose a path.
+//!
+//! service-api.md "Durability": a job is inserted (and the transaction committed with
+//! `synchronous = FULL`) before the `201` leaves; at start-up [`Store::recover`] puts jobs
+//! found `running` back to `queued`.
+
+use serde::Serialize;
+use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::SqlitePool;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::Duration;
+use uuid::Uuid;
+
+/// The five states of service-api.md.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JobState {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    pub const ALL: [JobState; 5] =
+        [JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled];
+
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Succeeded => "succeeded",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+
+    #[must_use]
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|st| st.as_str() == s)
+    }
+
+    /// Succeeded, failed or cancelled: nothing will change any more.
+    #[must_use]
+    pub fn is_finished(self) -> bool {
+        matches!(self, JobState::Succeeded | JobState::Failed | JobState::Cancelled)
+    }
+}
+
+/// One job as the API shows it (the scene document is kept in the store but not echoed).
+#[derive(Clone, Debug, Serialize)]
+pub struct JobRecord {
+    pub id: Uuid,
+    pub state: JobState,
+    pub name: String,
+    pub created_at: String,
+    pub started_at: Option<String>,
+    pub finished_at: Option<String>,
+    pub progress: Option<serde_json::Value>,
+    pub stats: Option<serde_json::Value>,
+    pub error: Option<serde_json::Value>,
+    /// True once a frame was stored on disk (`GET .../frame` can answer after a restart).
+    #[serde(skip)]
+    pub has_frame: bool,
+}
+
+#[derive(sqlx::FromRow)]
+struct Row {
+    id: String,
+    name: String,
+    state: String,
+    created_at: String,
+    started_at: Option<String>,
+    finished_at: Option<String>,
+    progress: Option<String>,
+    stats: Option<String>,
+    error: Option<String>,
+    has_frame: i64,
+}
+
+const COLUMNS: &str =
+    "id, name, state, created_at, started_at, finished_at, progress, stats, error, has_frame";
+
+impl Row {
+    fn into_record(self) -> Result<JobRecord, StoreError> {
+        let json = |s: Option<String>| -> Result<Option<serde_json::Value>, StoreError> {
+            s.map(|s| serde_json::from_str(&s).map_err(|e| StoreError::Corrupt(e.to_string())))
+                .transpose()
+        };
+        Ok(JobRecord {
+            id: Uuid::parse_str(&self.id).map_err(|e| StoreError::Corrupt(e.to_string()))?,
+            state: JobState::parse(&self.state)
+                .ok_or_else(|| StoreError::Corrupt(format!("unknown state {:?}", self.state)))?,
+            name: self.name,
+            created_at: self.created_at,
+            started_at: self.started_at,
+            finished_at: self.finished_at,
+            progress: json(self.progress)?,
+            stats: json(self.stats)?,
+            error: json(self.error)?,
+            has_frame: self.has_frame != 0,
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("database: {0}")]
+    Db(#[from] sqlx::Error),
+    #[error("migration: {0}")]
+    Migrate(#[from] sqlx::migrate::MigrateError),
+    #[error("file: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("corrupt record: {0}")]
+    Corrupt(String),
+}
+
+/// The current time as RFC 3339 UTC (`2026-11-22T10:00:00.123Z`).
+#[must_use]
+pub fn now_rfc3339() -> String {
+    let now = time::OffsetDateTime::now_utc();
+    // Millisecond precision: enough to order events, short enough to read.
+    let now = now.replace_millisecond(now.millisecond()).unwrap_or(now);
+    now.format(&time::format_description::well_known::Rfc3339).unwrap_or_default()
+}
+
+/// Names of the stored layer files; `image.exr` is the linear HDR image.
+pub const LAYER_FILES: [&str; 4] = ["image", "samples", "distance", "classes"];
+
+#[derive(Clone, Debug)]
+pub struct Store {
+    pool: SqlitePool,
+    jobs_dir: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating if missing) `data_dir/glimpse.db` and runs the migrations.
+    pub async fn open(data_dir: &Path) -> Result<Self, StoreError> {
+        std::fs::create_dir_all(data_dir)?;
+        let jobs_dir = data_dir.join("jobs");
+        std::fs::create_dir_all(&jobs_dir)?;
+        let url = format!("sqlite://{}", data_dir.join("glimpse.db").display());
+        let opts = SqliteConnectOptions::from_str(&url)?
+            .create_if_missing(true)
+            // WAL: readers (GET /v1/jobs) never wait for the worker's writes.
+            .journal_mode(SqliteJournalMode::Wal)
+            // FULL: a commit is on disk before we answer 201 (durability contract).
+            .synchronous(SqliteSynchronous::Full)
+            .busy_timeout(Duration::from_secs(5))
+            .foreign_keys(true);
+        let pool = SqlitePoolOptions::new().max_connections(4).connect_with(opts).await?;
+        sqlx::migrate!("./migrations").run(&pool).await?;
+        Ok(Self { pool, jobs_dir })
+    }
+
+    pub async fn close(&self) {
+        self.pool.close().await;
+    }
+
+    /// Folder of a job's images. `id` is a parsed UUID, so the path cannot escape.
+    #[must_use]
+    pub fn job_dir(&self, id: Uuid) -> PathBuf {
+        self.jobs_dir.join(id.hyphenated().to_string())
+    }
+
+    pub async fn insert(&self, id: Uuid, name: &str, scene: &str) -> Result<JobRecord, StoreError> {
+        let created = now_rfc3339();
+        sqlx::query("INSERT INTO jobs (id, name, state, scene, created_at) VALUES (?, ?, 'queued', ?, ?)")
+            .bind(id.to_string())
+            .bind(name)
+            .bind(scene)
+            .bind(&created)
+            .execute(&self.pool)
+            .await?;
+        Ok(JobRecord {
+            id,
+            state: JobState::Queued,
+            name: name.to_owned(),
+            created_at: created,
+            started_at: None,
+            finished_at: None,
+            progress: None,
+            stats: None,
+            error: None,
+            has_frame: false,
+        })
+    }
+
+    pub async fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError> {
+        let row: Option<Row> = sqlx::query_as(&format!("SELECT {COLUMNS} FROM jobs WHERE id = ?"))
+            .bind(id.to_string())
+            .fetch_optional(&self.pool)
+            .await?;
+        row.map(Row::into_record).transpose()
+    }
+
+    pub async fn scene(&self, id: Uuid) -> Result<Option<String>, StoreError> {
+        Ok(sqlx::query_scalar("SELECT scene FROM jobs WHERE id = ?")
+            .bind(id.to_string())
+            .fetch_optional(&self.pool)
+            .await?)
+    }
+
+    /// Newest first (UUIDv7 ids sort by creation time).
+    pub async fn list(&self, state: Option<JobState>, limit: u32) -> Result<Vec<JobRecord>, StoreError> {
+        let rows: Vec<Row> = match state {
+            Some(s) => {
+                sqlx::query_as(&format!(
+                    "SELECT {COLUMNS} FROM jobs WHERE state = ? ORDER BY id DESC LIMIT ?"
+                ))
+                .bind(s.as_str())
+                .bind(i64::from(limit))
+                .fetch_all(&self.pool)
+                .await?
+            }
+            None => {
+                sqlx::query_as(&format!("SELECT {COLUMNS} FROM jobs ORDER BY id DESC LIMIT ?"))
+                    .bind(i64::from(limit))
+                    .fetch_all(&self.pool)
+                    .await?
+            }
+        };
+        rows.into_iter().map(Row::into_record).collect()
+    }
+
+    pub async fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
+        let rows: Vec<(String, i64)> =
+            sqlx::query_as("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetch_all(&self.pool).await?;
+        Ok(rows.into_iter().filter_map(|(s, n)| JobState::parse(&s).map(|s| (s, n))).collect())
+    }
+
+    /// queued → running; false if the job was no longer queued (cancelled meanwhile).
+    pub async fn mark_running(&self, id: Uuid) -> Result<Option<String>, StoreError> {
+        let started = now_rfc3339();
+        let r = sqlx::query(
+            "UPDATE jobs SET state = 'running', started_at = ?, progress = NULL WHERE id = ? AND state = 'queued'",
+        )
+        .bind(&started)
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok((r.rows_affected() == 1).then_some(started))
+    }
+
+    /// queued → cancelled; false if the job had left `queued`.
+    pub async fn cancel_queued(&self, id: Uuid) -> Result<bool, StoreError> {
+        let r = sqlx::query(
+            "UPDATE jobs SET state = 'cancelled', finished_at = ? WHERE id = ? AND state = 'queued'",
+        )
+        .bind(now_rfc3339())
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
+    }
+
+    /// running → a finished state, with what the render left.
+    pub async fn finish(
+        &self,
+        id: Uuid,
+        state: JobState,
+        progress: Option<&serde_json::Value>,
+        stats: Option<&serde_json::Value>,
+        error: Option<&serde_json::Value>,
+        has_frame: bool,
+    ) -> Result<String, StoreError> {
+        let finished = now_rfc3339();
+        sqlx::query(
+            "UPDATE jobs SET state = ?, finished_at = ?, progress = ?, stats = ?, error = ?, has_frame = ? WHERE id = ?",
+        )
+        .bind(state.as_str())
+        .bind(&finished)
+        .bind(progress.map(ToString::to_string))
+        .bind(stats.map(ToString::to_string))
+        .bind(error.map(ToString::to_string))
+        .bind(i64::from(has_frame))
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(finished)
+    }
+
+    /// running → queued (graceful shutdown: the job runs again from the start next time).
+    pub async fn requeue(&self, id: Uuid) -> Result<(), StoreError> {
+        sqlx::query(
+            "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL WHERE id = ? AND state = 'running'",
+        )
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(())
+    }
+
+    /// Start-up recovery: `running` jobs were interrupted by a crash and go back to
+    /// `queued`; returns every queued id, oldest first, to be enqueued again.
+    pub async fn recover(&self) -> Result<Vec<Uuid>, StoreError> {
+        sqlx::query("UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL WHERE state = 'running'")
+            .execute(&self.pool)
+            .await?;
+        let ids: Vec<String> = sqlx::query_scalar("SELECT id FROM jobs WHERE state = 'queued' ORDER BY id ASC")
+            .fetch_all(&self.pool)
+            .await?;
+        ids.iter()
+            .map(|s| Uuid::parse_str(s).map_err(|e| StoreError::Corrupt(e.to_string())))
+            .collect()
+    }
+
+    /// Removes a finished job and its images; false if it does not exist or is not finished.
+    pub async fn delete_finished(&self, id: Uuid) -> Result<bool, StoreError> {
+        let r = sqlx::query("DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')")
+            .bind(id.to_string())
+            .execute(&self.pool)
+            .await?;
+        if r.rows_affected() == 0 {
+            return Ok(false);
+        }
+        let dir = self.job_dir(id);
+        match tokio::fs::remove_dir_all(&dir).await {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e.into()),
+        }
+        Ok(true)
+    }
+
+    /// Path of a stored layer (`image`, ...) as PNG, or of the EXR image.
+    #[must_use]
+    pub fn layer_path(&self, id: Uuid, layer: &str, exr: bool) -> Option<PathBuf> {
+        let name = LAYER_FILES.iter().find(|l| **l == layer)?;
+        let file = if exr { format!("{name}.exr") } else { format!("{name}.png") };
+        Some(self.job_dir(id).join(file))
+    }
+}
+
+/// Writes `files` (name, bytes) into `dir` atomically (temp file + rename), synchronously:
+/// called from worker threads, never from the async runtime.
+pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io::Result<()> {
+    use std::io::Write;
+    std::fs::create_dir_all(dir)?;
+    for (name, bytes) in files {
+        let tmp = dir.join(format!(".{name}.tmp"));
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, dir.join(name))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,361 @@
+//! Scene geometry behind one acceleration structure (obvhs CWBVH, Ylitie et al. 2017).
+//!
+//! The rest of the tracer sees only [`Geometry::intersect`], [`Geometry::occluded`] and
+//! [`Geometry::surface`] (STYLE.md: "keep obvhs behind `tracer::bvh`").
+
+use crate::scene::{MaterialId, ObjectId, Scene, Shape};
+use glam::{Vec3, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::cwbvh::CwBvh;
+use obvhs::ray::{Ray as BvhRay, RayHit};
+use obvhs::BvhBuildParams;
+
+/// Marks "no such index" (no emitter, no shading normals, no primitive to skip).
+pub const NONE: u32 = u32::MAX;
+
+/// One intersectable primitive, stored in BVH leaf order so that the index the traversal
+/// hands back addresses it directly (no indirection through `primitive_indices`).
+#[derive(Clone, Copy, Debug)]
+pub enum Prim {
+    /// `p = v0 + u·e1 + v·e2`.
+    Tri {
+        v0: Vec3A,
+        e1: Vec3A,
+        e2: Vec3A,
+    },
+    Sphere {
+        center: Vec3A,
+        radius: f32,
+    },
+}
+
+/// What a primitive belongs to; looked up only after the closest hit is known.
+#[derive(Clone, Copy, Debug)]
+pub struct PrimInfo {
+    pub object: ObjectId,
+    pub material: MaterialId,
+    /// Index into the emitter list, or [`NONE`].
+    pub emitter: u32,
+    /// Index into [`Geometry::normals`] (three per triangle), or [`NONE`].
+    pub normals: u32,
+}
+
+/// The closest hit of a ray.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// A hit resolved into what shading needs.
+#[derive(Clone, Copy, Debug)]
+pub struct Surface {
+    pub p: Vec3,
+    /// Geometric normal as the primitive defines it (triangle winding, sphere outward).
+    pub ng: Vec3,
+    /// Shading normal on the same side as `ng`.
+    pub ns: Vec3,
+    pub info: PrimInfo,
+}
+
+pub struct Geometry {
+    bvh: Option<CwBvh>,
+    pub prims: Vec<Prim>,
+    pub info: Vec<PrimInfo>,
+    pub normals: Vec<Vec3>,
+    /// Bounding sphere of the whole scene (centre, radius): directional and environment
+    /// light power, and where "infinitely far" starts.
+    pub bounds_center: Vec3,
+    pub bounds_radius: f32,
+}
+
+impl Geometry {
+    /// Collects every primitive of `scene` and builds the BVH. `emitter_of(object, prim)`
+    /// is filled in later by the light module through [`Geometry::info`].
+    #[must_use]
+    pub fn build(scene: &Scene) -> Self {
+        let mut prims = Vec::new();
+        let mut info = Vec::new();
+        let mut normals = Vec::new();
+        for (obj, shape) in scene.shapes.iter().enumerate() {
+            let object = obj as ObjectId;
+            match shape {
+                Shape::Sphere {
+                    center,
+                    radius,
+                    material,
+                } => {
+                    prims.push(Prim::Sphere {
+                        center: (*center).into(),
+                        radius: *radius,
+                    });
+                    info.push(PrimInfo {
+                        object,
+                        material: *material,
+                        emitter: NONE,
+                        normals: NONE,
+                    });
+                }
+                Shape::Triangles {
+                    triangles,
+                    material,
+                } => {
+                    for t in triangles {
+                        let e1 = t.p[1] - t.p[0];
+                        let e2 = t.p[2] - t.p[0];
+                        // Validation drops degenerate triangles; this guards any that slip
+                        // through (a zero normal would poison shading with NaN).
+                        if !e1.cross(e2).is_finite() || e1.cross(e2).length_squared() == 0.0 {
+                            continue;
+                        }
+                        let nidx = match t.n {
+                            Some(n)
+                                if n.iter().all(|v| v.is_finite() && v.length_squared() > 0.0) =>
+                            {
+                                let i = normals.len() as u32;
+                                normals.extend(n.iter().map(|v| v.normalize()));
+                                i
+                            }
+                            _ => NONE,
+                        };
+                        prims.push(Prim::Tri {
+                            v0: t.p[0].into(),
+                            e1: e1.into(),
+                            e2: e2.into(),
+                        });
+                        info.push(PrimInfo {
+                            object,
+                            material: *material,
+                            emitter: NONE,
+                            normals: nidx,
+                        });
+                    }
+                }
+            }
+        }
+        let aabbs: Vec<Aabb> = prims.iter().map(prim_aabb).collect();
+        let mut total = Aabb::empty();
+        for a in &aabbs {
+            total = total.union(a);
+        }
+        let (bounds_center, bounds_radius) = if aabbs.is_empty() {
+            (Vec3::ZERO, 1.0)
+        } else {
+            let c: Vec3 = total.center().into();
+            (c, (Vec3::from(total.diagonal()).length() * 0.5).max(1e-6))
+        };
+        let bvh = if prims.is_empty() {
+            None
+        } else {
+            let bvh = obvhs::cwbvh::builder::build_cwbvh(
+                &aabbs,
+                BvhBuildParams::medium_build(),
+                &mut std::time::Duration::default(),
+            );
+            // Reorder primitives to the BVH's leaf order (obvhs examples/cornell_box_cwbvh.rs).
+            let order = &bvh.primitive_indices;
+            prims = order.iter().map(|&i| prims[i as usize]).collect();
+            info = order.iter().map(|&i| info[i as usize]).collect();
+            Some(bvh)
+        };
+        Self {
+            bvh,
+            prims,
+            info,
+            normals,
+            bounds_center,
+            bounds_radius,
+        }
+    }
+
+    /// Closest hit along `o + t·d` (`d` unit) with `t < tmax`, ignoring a hit on `skip`
+    /// (the primitive the ray leaves) unless that is the far side of a sphere.
+    #[inline]
+    pub fn intersect(&self, o: Vec3, d: Vec3, tmax: f32, skip: u32) -> Option<Hit> {
+        let bvh = self.bvh.as_ref()?;
+        let ray = BvhRay::new(o.into(), d.into(), 0.0, tmax);
+        let mut hit = RayHit::none();
+        if bvh.ray_traverse(ray, &mut hit, |r, id| self.prim_t(r, id as u32, skip)) {
+            let prim = hit.primitive_id;
+            let (u, v) = match self.prims[prim as usize] {
+                Prim::Tri { v0, e1, e2 } => tri_uv(r_o(o), r_o(d), v0, e1, e2),
+                Prim::Sphere { .. } => (0.0, 0.0),
+            };
+            Some(Hit {
+                t: hit.t,
+                prim,
+                u,
+                v,
+            })
+        } else {
+            None
+        }
+    }
+
+    /// True if anything blocks `o + t·d` for `t < tmax`.
+    #[inline]
+    pub fn occluded(&self, o: Vec3, d: Vec3, tmax: f32, skip: u32) -> bool {
+        let Some(bvh) = self.bvh.as_ref() else {
+            return false;
+        };
+        let ray = BvhRay::new(o.into(), d.into(), 0.0, tmax);
+        !bvh.ray_traverse_miss(ray, |r, id| self.prim_t(r, id as u32, skip))
+    }
+
+    #[inline(always)]
+    fn prim_t(&self, r: &BvhRay, id: u32, skip: u32) -> f32 {
+        match self.prims[id as usize] {
+            Prim::Tri { v0, e1, e2 } => {
+                if id == skip {
+                    // A ray leaving a plane cannot meet that plane again.
+                    return f32::INFINITY;
+                }
+                tri_t(r, v0, e1, e2)
+            }
+            Prim::Sphere { center, radius } => sphere_t(r, center, radius, id == skip),
+        }
+    }
+
+    /// Position and normals of a hit.
+    #[inline]
+    #[must_use]
+    pub fn surface(&self, o: Vec3, d: Vec3, hit: &Hit) -> Surface {
+        let info = self.info[hit.prim as usize];
+        match self.prims[hit.prim as usize] {
+            Prim::Tri { v0, e1, e2 } => {
+                // From barycentrics, not o + t·d: the error then scales with the vertex
+                // magnitude only, which is what the ray offset assumes.
+                let p = Vec3::from(v0 + e1 * hit.u + e2 * hit.v);
+                let ng = Vec3::from(e1.cross(e2)).normalize();
+                let ns = if info.normals == NONE {
+                    ng
+                } else {
+                    let n = &self.normals[info.normals as usize..info.normals as usize + 3];
+                    let s = (n[0] * (1.0 - hit.u - hit.v) + n[1] * hit.u + n[2] * hit.v)
+                        .normalize_or_zero();
+                    if s == Vec3::ZERO {
+                        ng
+                    } else if s.dot(ng) < 0.0 {
+                        -s
+                    } else {
+                        s
+                    }
+                };
+                Surface { p, ng, ns, info }
+            }
+            Prim::Sphere { center, radius } => {
+                let c = Vec3::from(center);
+                let n = (o + d * hit.t - c).normalize_or_zero();
+                let n = if n == Vec3::ZERO { -d } else { n };
+                // Re-projected onto the sphere to remove the error of o + t·d.
+                Surface {
+                    p: c + n * radius,
+                    ng: n,
+                    ns: n,
+                    info,
+                }
+            }
+        }
+    }
+
+    /// Closest primitive's object id through a ray, or `None`.
+    #[must_use]
+    pub fn object_at(&self, o: Vec3, d: Vec3) -> Option<ObjectId> {
+        self.intersect(o, d, f32::INFINITY, NONE)
+            .map(|h| self.info[h.prim as usize].object)
+    }
+}
+
+#[inline(always)]
+fn r_o(v: Vec3) -> Vec3A {
+    v.into()
+}
+
+fn prim_aabb(p: &Prim) -> Aabb {
+    match *p {
+        Prim::Tri { v0, e1, e2 } => Aabb::from_points(&[v0, v0 + e1, v0 + e2]),
+        Prim::Sphere { center, radius } => {
+            Aabb::new(center - Vec3A::splat(radius), center + Vec3A::splat(radius))
+        }
+    }
+}
+
+/// Möller–Trumbore ray/triangle distance (INFINITY on a miss).
+#[inline(always)]
+fn tri_t(r: &BvhRay, v0: Vec3A, e1: Vec3A, e2: Vec3A) -> f32 {
+    let pv = r.direction.cross(e2);
+    let det = e1.dot(pv);
+    if det == 0.0 || !det.is_finite() {
+        return f32::INFINITY;
+    }
+    let inv = 1.0 / det;
+    let tv = r.origin - v0;
+    let u = tv.dot(pv) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return f32::INFINITY;
+    }
+    let qv = tv.cross(e1);
+    let v = r.direction.dot(qv) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return f32::INFINITY;
+    }
+    let t = e2.dot(qv) * inv;
+    if t > r.tmin && t < r.tmax {
+        t
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// Barycentrics (u, v) of the hit of a ray on a triangle (same algebra as [`tri_t`]).
+#[inline]
+fn tri_uv(o: Vec3A, d: Vec3A, v0: Vec3A, e1: Vec3A, e2: Vec3A) -> (f32, f32) {
+    let pv = d.cross(e2);
+    let inv = 1.0 / e1.dot(pv);
+    let tv = o - v0;
+    let u = tv.dot(pv) * inv;
+    let v = d.dot(tv.cross(e1)) * inv;
+    (u.clamp(0.0, 1.0), v.clamp(0.0, 1.0 - u.clamp(0.0, 1.0)))
+}
+
+/// Ray/sphere distance with the precision fixes of Haines et al., "Precision Improvements
+/// for Ray/Sphere Intersection" (Ray Tracing Gems, ch. 7). `from_self`: the ray starts on
+/// this sphere, so only the far root of an inward ray is a real hit.
+#[inline(always)]
+fn sphere_t(r: &BvhRay, c: Vec3A, radius: f32, from_self: bool) -> f32 {
+    let f = r.origin - c;
+    let d = r.direction;
+    let b = -f.dot(d);
+    let l = f + d * b;
+    let r2 = radius * radius;
+    let disc = r2 - l.length_squared();
+    if disc < 0.0 {
+        return f32::INFINITY;
+    }
+    let cc = f.length_squared() - r2;
+    let q = b + disc.sqrt().copysign(b);
+    let (mut t0, mut t1) = (if q != 0.0 { cc / q } else { 0.0 }, q);
+    if t0 > t1 {
+        std::mem::swap(&mut t0, &mut t1);
+    }
+    if from_self {
+        // Leaving outward (b <= 0 means moving away from the centre): no hit at all.
+        if b <= 0.0 {
+            return f32::INFINITY;
+        }
+        return if t1 > r.tmin && t1 < r.tmax {
+            t1
+        } else {
+            f32::INFINITY
+        };
+    }
+    if t0 > r.tmin && t0 < r.tmax {
+        t0
+    } else if t1 > r.tmin && t1 < r.tmax {
+        t1
+    } else {
+        f32::INFINITY
+    }
+}

@@ -1,0 +1,244 @@
+// End-to-end test of the browser viewer (service-api.md "GET /") in headless Chromium.
+// Started by tests/browser/run.sh, which builds and starts `glimpse serve`; see README.md.
+//
+//   node viewer.test.cjs BASE_URL SCREENSHOT.png [TOKEN]
+//
+// What it checks, in order (each step fails the run with a message):
+//  1. with a token: without it the page shows the 401 error; with it the examples load;
+//  2. a scene error (negative radius) is shown next to its JSON path and selected in the
+//     textarea;
+//  3. an example (or, if none is bundled, a built-in scene) at an overridden small size is
+//     submitted; at least two frames arrive over the WebSocket, progress is shown, the
+//     final statistics table fills;
+//  4. switching to the distance layer changes the image and shows the JND legend;
+//  5. `/?job=ID` reopens the finished job; the jobs list shows it;
+//  6. the cancel button cancels a running job;
+//  7. no uncaught page error at any point. A screenshot goes to SCREENSHOT.png.
+"use strict";
+
+const fs = require("fs");
+const os = require("os");
+const path = require("path");
+const { chromium } = require("playwright-core");
+
+const [base, shotPath, token] = process.argv.slice(2);
+if (!base || !shotPath) {
+  console.error("usage: node viewer.test.cjs BASE_URL SCREENSHOT.png [TOKEN]");
+  process.exit(2);
+}
+const auth = token ? { Authorization: "Bearer " + token } : {};
+const T = (s) => s * 1000;
+
+// Used when the server bundles no example, and as the shape of the error case.
+const FALLBACK_SCENE = {
+  version: 1, name: "browser-test",
+  image: { width: 96, height: 72 },
+  camera: { position: [0, 0.5, 5], look_at: [0, 0, 0], up: [0, 1, 0], fov_y: 40 },
+  materials: {
+    white: { type: "diffuse", albedo: [0.7, 0.7, 0.7] },
+    floor: { type: "diffuse", texture: { type: "checker", scale: 0.5, a: [0.8, 0.1, 0.1], b: [0.1, 0.1, 0.8] } },
+  },
+  objects: [
+    { type: "sphere", center: [0, 0, 0], radius: 1, material: "white" },
+    { type: "quad", corner: [-3, -1, 3], edge_u: [6, 0, 0], edge_v: [0, 0, -6], material: "floor" },
+  ],
+  lights: [
+    { type: "point", position: [2, 4, 5], intensity: [50, 50, 50] },
+    { type: "environment", radiance: [0.1, 0.1, 0.1] },
+  ],
+  render: { mode: "progressive", samples_per_pixel: 4, max_bounces: 2, seed: 1 },
+};
+
+// A job that keeps the single worker busy until we cancel it, so that the viewer's job
+// is queued behind it and its stream is open before its first frame: without this a
+// small render can finish before the WebSocket connects (then only the last frame shows).
+const BLOCKER_SCENE = Object.assign({}, FALLBACK_SCENE, {
+  name: "browser-test-blocker", image: { width: 1024, height: 768 },
+  render: { mode: "reference", samples_per_pixel: 256, max_bounces: 4, seed: 2 },
+});
+
+async function api(method, p, body) {
+  const res = await fetch(base + p, {
+    method, headers: Object.assign({ "Content-Type": "application/json" }, auth),
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  const text = await res.text();
+  let json = null;
+  try { json = JSON.parse(text); } catch (_) { /* not JSON */ }
+  return { status: res.status, json, text };
+}
+
+function check(cond, msg) {
+  if (!cond) throw new Error("FAIL: " + msg);
+  console.log("ok - " + msg);
+}
+
+async function main() {
+  const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), "glimpse-chromium-"));
+  const context = await chromium.launchPersistentContext(userDataDir, {
+    executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+    headless: true, // adds --headless
+    args: ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+      "--disable-background-networking", "--disable-component-update", "--disable-sync"],
+    viewport: { width: 1280, height: 900 },
+  });
+  const pageErrors = [];
+  const page = context.pages()[0] || (await context.newPage());
+  page.on("pageerror", (e) => pageErrors.push(String(e)));
+  page.on("console", (m) => {
+    if (m.type() === "error" && !/Failed to load resource/.test(m.text())) console.log("  [console] " + m.text());
+  });
+  // Expected 4xx (401 before the token, 422 for the bad scene, 404 for a frame that does
+  // not exist yet) are listed for the log, not failed on.
+  page.on("response", (r) => { if (r.status() >= 400) console.log("  [http " + r.status() + "] " + r.url().replace(base, "")); });
+  page.setDefaultTimeout(T(30));
+  let blockerId = null;
+  try {
+    // 1. token handling ------------------------------------------------------------------
+    await page.goto(base + "/");
+    if (token) {
+      await page.waitForSelector("#error.visible");
+      const msg = await page.textContent("#error");
+      check(/token/i.test(msg), "without the token the page says why (" + msg.trim().slice(0, 60) + ")");
+      await page.fill("#token", token);
+      await page.reload();
+      check(await page.inputValue("#token") === token, "the token is kept in localStorage across reloads");
+    }
+    await page.waitForFunction(() => {
+      const o = document.querySelector("#example-select option");
+      return o && !/loading/.test(o.textContent);
+    });
+    check(!(await page.isVisible("#error.visible")), "examples load without an error");
+
+    // 2. a scene error is located in the pasted JSON ---------------------------------------
+    const bad = JSON.parse(JSON.stringify(FALLBACK_SCENE));
+    bad.objects[0].radius = -2;
+    await page.fill("#scene-text", JSON.stringify(bad, null, 2));
+    await page.click("#submit");
+    await page.waitForSelector("#error.visible");
+    const errPath = await page.textContent("#error-path");
+    check(errPath === "objects[0].radius", "422 shows the field path (" + errPath + ")");
+    const selected = await page.$eval("#scene-text", (t) => t.value.slice(t.selectionStart, t.selectionEnd));
+    check(/"radius":\s*-2/.test(selected), "the faulty field is selected in the textarea (" + selected + ")");
+
+    // 3. submit an example (small) and watch it refine --------------------------------------
+    const examples = (await api("GET", "/v1/examples")).json.examples || [];
+    let sceneText;
+    if (examples.length) {
+      // The smallest bundled example, at 96x72 (size override fields) and few samples.
+      const px = (e) => (e.scene.image ? e.scene.image.width * e.scene.image.height : 1e12);
+      const k = examples.reduce((best, e, i) => (px(e) < px(examples[best]) ? i : best), 0);
+      await page.selectOption("#example-select", String(k));
+      const loaded = JSON.parse(await page.inputValue("#scene-text"));
+      check(loaded.version === 1, "picking example '" + examples[k].name + "' fills the scene");
+      loaded.render = Object.assign({}, loaded.render, {
+        samples_per_pixel: Math.min((loaded.render && loaded.render.samples_per_pixel) || 4, 4),
+      });
+      sceneText = JSON.stringify(loaded, null, 2);
+    } else {
+      console.log("note - the server bundles no example; using a built-in scene");
+      sceneText = JSON.stringify(FALLBACK_SCENE, null, 2);
+    }
+    await page.fill("#scene-text", sceneText);
+    await page.fill("#width-override", "96");
+    await page.fill("#height-override", "72");
+
+    const blocker = await api("POST", "/v1/jobs", BLOCKER_SCENE);
+    check(blocker.status === 201, "blocker job accepted (" + blocker.status + ")");
+    blockerId = blocker.json.id;
+    await page.click("#submit");
+    await page.waitForFunction(() => /^[0-9a-f-]{8,}/i.test(document.querySelector("#job-id").textContent));
+    const jobId = (await page.textContent("#job-id")).trim();
+    check(!(await page.isVisible("#error.visible")), "the scene is accepted (job " + jobId + ")");
+    check(new URL(page.url()).searchParams.get("job") === jobId, "the address bar carries ?job=ID");
+    await page.waitForFunction(() => document.querySelector("#status").textContent === "Streaming.");
+    const cancelled = await api("POST", "/v1/jobs/" + blockerId + "/cancel");
+    check(cancelled.status === 202, "blocker cancelled (" + cancelled.status + ")");
+    blockerId = null;
+
+    await page.waitForFunction(() => Number(document.querySelector("#frame-img").dataset.frames) >= 2,
+      null, { timeout: T(120) });
+    check(true, "at least two frames arrived over the WebSocket");
+    await page.waitForFunction(() => document.querySelectorAll("#stats th").length >= 8, null, { timeout: T(120) });
+    const statsText = await page.textContent("#stats");
+    check(/pixels traced/.test(statsText) && /total time/.test(statsText), "the final statistics table is shown");
+    check((await page.textContent("#job-state")) === "succeeded", "the job succeeded");
+    const iteration = await page.textContent("#iteration");
+    const fraction = await page.textContent("#pixel-fraction");
+    check(/^\d+$/.test(iteration) && /%$/.test(fraction), "iteration " + iteration + ", pixels " + fraction);
+    check(await page.$$eval("#iterations tr", (r) => r.length) >= 2, "per-iteration timings are listed");
+    const frames = await page.$eval("#frame-img", (i) => Number(i.dataset.frames));
+    console.log("  frames received: " + frames);
+
+    // 4. the distance layer -----------------------------------------------------------------
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.dataset.layer === "image" && i.complete && i.naturalWidth > 0;
+    });
+    const imageShot = await page.locator("#frame-img").screenshot();
+    const imageSrc = await page.getAttribute("#frame-img", "src");
+    await page.check("#layer-distance");
+    await page.waitForFunction((old) => {
+      const i = document.querySelector("#frame-img");
+      return i.dataset.layer === "distance" && i.src !== old && i.complete && i.naturalWidth > 0;
+    }, imageSrc);
+    const distanceShot = await page.locator("#frame-img").screenshot();
+    check(!imageShot.equals(distanceShot), "switching to the distance layer changes the image");
+    check(await page.isVisible("#distance-scale"), "the distance legend (JND scale) is shown");
+    const dims = await page.$eval("#frame-img", (i) => [i.naturalWidth, i.naturalHeight]);
+    check(dims[0] === 96 && dims[1] === 72, "the size override was applied (" + dims.join("x") + ")");
+    await page.check("#layer-classes");
+    await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "classes");
+    check(/complex/.test(await page.textContent("#legend")), "the classes legend is shown");
+    await page.check("#layer-distance");
+    await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "distance");
+    await page.screenshot({ path: shotPath, fullPage: true });
+    console.log("  screenshot: " + shotPath);
+
+    // 5. reopen by address, jobs list ------------------------------------------------------------
+    await page.goto(base + "/?job=" + encodeURIComponent(jobId));
+    await page.waitForFunction(() => document.querySelectorAll("#stats th").length >= 8);
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.complete && i.naturalWidth > 0;
+    });
+    check(true, "/?job=ID reopens the finished job with its frame and statistics");
+    await page.waitForSelector(`#jobs tr[data-job="${jobId}"]`);
+    check(true, "the jobs list shows the job");
+    await page.click("#refresh-jobs");
+    await page.click(`#jobs tr:not([data-job="${jobId}"]) button`);
+    await page.waitForFunction((id) => document.querySelector("#job-id").textContent !== id, jobId);
+    await page.click(`#jobs tr[data-job="${jobId}"] button`);
+    await page.waitForFunction((id) => document.querySelector("#job-id").textContent === id, jobId);
+    await page.waitForFunction(() => document.querySelectorAll("#stats th").length >= 8);
+    check(true, "a job opens from the jobs list");
+    const href = await page.getAttribute("#download-exr", "href");
+    check(href === "/v1/jobs/" + jobId + "/frame?format=exr", "the EXR download link points at the job");
+
+    // 6. cancel from the page --------------------------------------------------------------------
+    await page.fill("#width-override", "");
+    await page.fill("#height-override", "");
+    await page.fill("#scene-text", JSON.stringify(BLOCKER_SCENE));
+    await page.click("#submit");
+    await page.waitForFunction((old) => {
+      const t = document.querySelector("#job-id").textContent;
+      return t && t !== old;
+    }, jobId);
+    await page.waitForFunction(() => !document.querySelector("#cancel").disabled);
+    await page.click("#cancel");
+    await page.waitForFunction(() => document.querySelector("#job-state").textContent === "cancelled",
+      null, { timeout: T(60) });
+    check(true, "the cancel button cancels a running job");
+
+    check(pageErrors.length === 0, "no uncaught page errors" + (pageErrors.length ? ": " + pageErrors.join("; ") : ""));
+  } finally {
+    if (blockerId) await api("POST", "/v1/jobs/" + blockerId + "/cancel").catch(() => {});
+    await context.close();
+    fs.rmSync(userDataDir, { recursive: true, force: true });
+  }
+}
+
+main().then(() => console.log("viewer test passed" + (token ? " (with token)" : "")), (e) => {
+  console.error(e && e.stack ? e.stack : String(e));
+  process.exit(1);
+});

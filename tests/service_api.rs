@@ -1,0 +1,612 @@
+//! The service end to end (issue #5, service-api.md): the real server on a loopback port
+//! (`glimpse::service::run` in this process), a real HTTP client and a real WebSocket
+//! client. Scenes are tiny so each test takes a second or two in the dev profile.
+
+use futures_util::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::{Duration, Instant};
+use tokio_tungstenite::tungstenite::Message;
+
+struct Server {
+    addr: SocketAddr,
+    client: reqwest::Client,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    task: Option<tokio::task::JoinHandle<anyhow::Result<()>>>,
+    _dir: Option<tempfile::TempDir>,
+}
+
+impl Server {
+    async fn start(tweak: impl FnOnce(&mut glimpse::service::Config)) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let mut s = Self::start_in(dir.path(), tweak).await;
+        s._dir = Some(dir);
+        s
+    }
+
+    async fn start_in(dir: &Path, tweak: impl FnOnce(&mut glimpse::service::Config)) -> Self {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let mut config = glimpse::service::Config::new(dir);
+        tweak(&mut config);
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(glimpse::service::run(listener, config, async {
+            let _ = rx.await;
+        }));
+        let client = reqwest::Client::new();
+        let s = Self { addr, client, stop: Some(tx), task: Some(task), _dir: None };
+        // Ready once /healthz answers.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while s.client.get(s.url("/healthz")).send().await.is_err() {
+            assert!(Instant::now() < deadline, "server did not come up");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        s
+    }
+
+    /// Graceful stop; returns what `run` returned.
+    async fn stop(mut self) -> anyhow::Result<()> {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        let task = self.task.take().unwrap();
+        tokio::time::timeout(Duration::from_secs(10), task).await.expect("shutdown took > 10 s").unwrap()
+    }
+
+    fn url(&self, p: &str) -> String {
+        format!("http://{}{p}", self.addr)
+    }
+
+    async fn post_scene(&self, scene: &Value) -> reqwest::Response {
+        self.client.post(self.url("/v1/jobs")).json(scene).send().await.unwrap()
+    }
+
+    async fn submit(&self, scene: &Value) -> String {
+        let r = self.post_scene(scene).await;
+        assert_eq!(r.status(), 201, "{:?}", r.text().await);
+        let loc = r.headers()["location"].to_str().unwrap().to_owned();
+        let job: Value = r.json().await.unwrap();
+        let id = job["id"].as_str().unwrap().to_owned();
+        assert_eq!(loc, format!("/v1/jobs/{id}"));
+        assert_eq!(job["state"], "queued");
+        id
+    }
+
+    async fn job(&self, id: &str) -> Value {
+        let r = self.client.get(self.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+        assert_eq!(r.status(), 200);
+        r.json().await.unwrap()
+    }
+
+    /// Polls until the job is in one of `states`.
+    async fn wait_state(&self, id: &str, states: &[&str], within: Duration) -> Value {
+        let deadline = Instant::now() + within;
+        loop {
+            let j = self.job(id).await;
+            if states.iter().any(|s| j["state"] == *s) {
+                return j;
+            }
+            assert!(Instant::now() < deadline, "job {id} never reached {states:?}: {j}");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+    }
+}
+
+/// A small valid scene: a diffuse sphere under a point light and a sky.
+fn scene(w: u32, h: u32, mode: &str, spp: u32) -> Value {
+    json!({
+        "version": 1, "name": "tiny",
+        "image": { "width": w, "height": h },
+        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
+        "materials": {
+            "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] },
+            "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
+                       "a": [0.9, 0.9, 0.9], "b": [0.1, 0.1, 0.1] } }
+        },
+        "objects": [
+            { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" },
+            { "type": "quad", "corner": [-5, -1, -5], "edge_u": [0, 0, 10], "edge_v": [10, 0, 0],
+              "material": "floor" }
+        ],
+        "lights": [
+            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
+            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
+        ],
+        "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": 1 },
+        "progressive": { "t0": 0.5, "initial_rate": 0.02 }
+    })
+}
+
+/// A reference render big enough to keep a worker busy for a while.
+fn long_scene() -> Value {
+    scene(512, 512, "reference", 512)
+}
+
+async fn error_of(r: reqwest::Response, status: u16, code: &str) -> Value {
+    assert_eq!(r.status(), status);
+    let b: Value = r.json().await.unwrap();
+    assert_eq!(b["error"]["code"], code, "{b}");
+    assert!(b["error"]["message"].as_str().is_some_and(|m| !m.is_empty()), "{b}");
+    assert!(b["error"].get("path").is_some(), "{b}");
+    b
+}
+
+fn is_png(b: &[u8]) -> bool {
+    b.starts_with(b"\x89PNG\r\n\x1a\n")
+}
+
+fn png_size(b: &[u8]) -> (u32, u32) {
+    let img = image::load_from_memory(b).unwrap();
+    (img.width(), img.height())
+}
+
+type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn ws_connect(s: &Server, id: &str, token: Option<&str>) -> Ws {
+    let q = token.map(|t| format!("?token={t}")).unwrap_or_default();
+    let (ws, _) = tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream{q}", s.addr)).await.unwrap();
+    ws
+}
+
+/// Reads the whole stream: (text messages, PNG payloads), checking that every `frame`
+/// text is followed by exactly one binary message.
+async fn read_stream(ws: &mut Ws, within: Duration) -> (Vec<Value>, Vec<Vec<u8>>) {
+    let (mut texts, mut pngs) = (Vec::new(), Vec::new());
+    let mut expect_binary = false;
+    let deadline = tokio::time::Instant::now() + within;
+    loop {
+        let m = tokio::time::timeout_at(deadline, ws.next()).await.expect("stream did not end in time");
+        match m {
+            Some(Ok(Message::Text(t))) => {
+                assert!(!expect_binary, "a frame text must be followed by its PNG");
+                let v: Value = serde_json::from_str(&t).unwrap();
+                expect_binary = v["type"] == "frame";
+                texts.push(v);
+            }
+            Some(Ok(Message::Binary(b))) => {
+                assert!(expect_binary, "binary without a frame message");
+                expect_binary = false;
+                pngs.push(b.to_vec());
+            }
+            Some(Ok(Message::Close(_))) | None => break,
+            Some(Ok(_)) => {}
+            Some(Err(e)) => panic!("websocket error: {e}"),
+        }
+    }
+    (texts, pngs)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn submit_stream_frames_layers_exr_list_delete() {
+    let s = Server::start(|_| {}).await;
+    // Hold the only worker with a long job so the streamed job is queued when we connect:
+    // the stream then sees every frame from the first.
+    let blocker = s.submit(&long_scene()).await;
+    let sc = scene(48, 48, "progressive", 8);
+    let id = s.submit(&sc).await;
+    let mut ws = ws_connect(&s, &id, None).await;
+    let first = tokio::time::timeout(Duration::from_secs(5), ws.next()).await.unwrap().unwrap().unwrap();
+    let first: Value = serde_json::from_str(first.to_text().unwrap()).unwrap();
+    assert_eq!(first["type"], "state");
+    assert_eq!(first["job"]["id"], id.as_str());
+    assert_eq!(first["job"]["state"], "queued");
+    let r = s.client.post(s.url(&format!("/v1/jobs/{blocker}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status(), 202);
+
+    let (texts, pngs) = read_stream(&mut ws, Duration::from_secs(60)).await;
+    let frames: Vec<&Value> = texts.iter().filter(|t| t["type"] == "frame").collect();
+    assert!(frames.len() >= 2, "expected at least 2 frames, got {texts:?}");
+    assert_eq!(pngs.len(), frames.len());
+    let iters: Vec<u64> = frames.iter().map(|f| f["iteration"].as_u64().unwrap()).collect();
+    assert!(iters.windows(2).all(|w| w[0] < w[1]), "iterations must increase: {iters:?}");
+    for f in &frames {
+        assert!(f["layers"].as_array().unwrap().iter().any(|l| l == "image"), "{f}");
+        let p = &f["progress"];
+        assert!(p["pixels_traced"].as_u64().unwrap() > 0, "{p}");
+        let frac = p["pixel_fraction"].as_f64().unwrap();
+        assert!(frac > 0.0 && frac <= 1.0, "{p}");
+        assert!(p.get("eta_ms").is_some() && p.get("elapsed_ms").is_some(), "{p}");
+    }
+    for p in &pngs {
+        assert!(is_png(p));
+        assert_eq!(png_size(p), (48, 48));
+    }
+    let done = texts.last().unwrap();
+    assert_eq!(done["type"], "done", "{texts:?}");
+    assert_eq!(done["job"]["state"], "succeeded");
+    let stats = &done["job"]["stats"];
+    for k in [
+        "width", "height", "mode", "iterations", "pixels_traced", "pixel_fraction", "total_ms", "trace_ms",
+        "metric_ms", "triangulate_ms", "final_mean_distance",
+    ] {
+        assert!(stats.get(k).is_some(), "stats lacks {k}: {stats}");
+    }
+    assert_eq!(stats["width"], 48);
+    assert_eq!(stats["mode"], "progressive");
+
+    // The job object agrees, with timestamps in order.
+    let j = s.job(&id).await;
+    assert_eq!(j["state"], "succeeded");
+    let (c, st, fi) =
+        (j["created_at"].as_str().unwrap(), j["started_at"].as_str().unwrap(), j["finished_at"].as_str().unwrap());
+    assert!(c.ends_with('Z') && c <= st && st <= fi, "{j}");
+
+    // Every layer, as PNG of the image size; the EXR; bad parameters.
+    for layer in ["image", "samples", "distance", "classes"] {
+        let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?layer={layer}"))).send().await.unwrap();
+        assert_eq!(r.status(), 200, "layer {layer}");
+        assert_eq!(r.headers()["content-type"], "image/png");
+        let b = r.bytes().await.unwrap();
+        assert_eq!(png_size(&b), (48, 48), "layer {layer}");
+    }
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame"))).send().await.unwrap();
+    assert_eq!(r.bytes().await.unwrap().to_vec(), *pngs.last().unwrap(), "default layer = last streamed image");
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?format=exr"))).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    let exr = glimpse::raster::decode_image(&r.bytes().await.unwrap()).unwrap();
+    assert_eq!((exr.width(), exr.height()), (48, 48));
+    assert!(!exr.has_non_finite());
+    assert!(exr.mean()[0] > 0.0, "a lit sphere is not black");
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?layer=depth"))).send().await.unwrap();
+    assert_eq!(error_of(r, 400, "invalid_parameter").await["error"]["path"], "layer");
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?format=gif"))).send().await.unwrap();
+    error_of(r, 400, "invalid_parameter").await;
+
+    // A late joiner on a finished job: state, the stored final frame, done.
+    let mut ws = ws_connect(&s, &id, None).await;
+    let (texts, pngs) = read_stream(&mut ws, Duration::from_secs(10)).await;
+    let kinds: Vec<&str> = texts.iter().map(|t| t["type"].as_str().unwrap()).collect();
+    assert_eq!(kinds, ["state", "frame", "done"]);
+    assert_eq!(pngs.len(), 1);
+
+    // List: newest first, filters, bad parameters.
+    let l: Value = s.client.get(s.url("/v1/jobs")).send().await.unwrap().json().await.unwrap();
+    let ids: Vec<&str> = l["jobs"].as_array().unwrap().iter().map(|j| j["id"].as_str().unwrap()).collect();
+    assert_eq!(ids, [id.as_str(), blocker.as_str()]);
+    let l: Value = s.client.get(s.url("/v1/jobs?state=cancelled")).send().await.unwrap().json().await.unwrap();
+    assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
+    assert_eq!(l["jobs"][0]["id"], blocker.as_str());
+    let l: Value = s.client.get(s.url("/v1/jobs?limit=1")).send().await.unwrap().json().await.unwrap();
+    assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
+    for bad in ["state=done", "limit=0", "limit=501", "limit=ten"] {
+        let r = s.client.get(s.url(&format!("/v1/jobs?{bad}"))).send().await.unwrap();
+        let b = error_of(r, 400, "invalid_parameter").await;
+        assert_eq!(b["error"]["path"], bad.split('=').next().unwrap());
+    }
+
+    // Metrics count what happened.
+    let m = s.client.get(s.url("/metrics")).send().await.unwrap().text().await.unwrap();
+    assert!(m.contains("glimpse_jobs{state=\"succeeded\"} 1"), "{m}");
+    assert!(m.contains("glimpse_jobs{state=\"cancelled\"} 1"), "{m}");
+    assert!(m.contains("glimpse_queue_depth 0"), "{m}");
+    assert!(m.contains("glimpse_pixels_traced_total "), "{m}");
+    assert!(!m.contains("glimpse_pixels_traced_total 0\n"), "{m}");
+
+    // Delete: 204, then gone (404 everywhere), a second delete 404.
+    let r = s.client.delete(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    assert_eq!(r.status(), 204);
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame"))).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+    let r = s.client.delete(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+    s.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
+    let s = Server::start(|_| {}).await;
+    let long = s.submit(&long_scene()).await;
+    s.wait_state(&long, &["running"], Duration::from_secs(10)).await;
+    // Still running: no delete, and no frame yet (a reference render has one at the end).
+    let r = s.client.delete(s.url(&format!("/v1/jobs/{long}"))).send().await.unwrap();
+    error_of(r, 409, "conflict").await;
+    let r = s.client.get(s.url(&format!("/v1/jobs/{long}/frame"))).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+
+    let small = s.submit(&scene(16, 16, "reference", 1)).await;
+    let t0 = Instant::now();
+    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status(), 202);
+    let j = s.wait_state(&long, &["cancelled"], Duration::from_secs(5)).await;
+    assert!(j["finished_at"].is_string());
+    // The worker is free at once: the queued job runs to the end right after.
+    s.wait_state(&small, &["succeeded"], Duration::from_secs(10)).await;
+    assert!(t0.elapsed() < Duration::from_secs(5), "cancel took {:?}", t0.elapsed());
+
+    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    error_of(r, 409, "conflict").await;
+    let r = s.client.post(s.url(&format!("/v1/jobs/{small}/cancel"))).send().await.unwrap();
+    error_of(r, 409, "conflict").await;
+    // A stream of a cancelled job ends with done and the cancelled state.
+    let mut ws = ws_connect(&s, &long, None).await;
+    let (texts, _) = read_stream(&mut ws, Duration::from_secs(5)).await;
+    assert_eq!(texts.last().unwrap()["type"], "done");
+    assert_eq!(texts.last().unwrap()["job"]["state"], "cancelled");
+    let r = s.client.delete(s.url(&format!("/v1/jobs/{long}"))).send().await.unwrap();
+    assert_eq!(r.status(), 204);
+    s.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_queue_is_429_with_retry_after_and_queued_jobs_cancel_at_once() {
+    let s = Server::start(|c| c.queue_capacity = 1).await;
+    let a = s.submit(&long_scene()).await;
+    s.wait_state(&a, &["running"], Duration::from_secs(10)).await;
+    let b = s.submit(&long_scene()).await; // waits: the queue is now full
+    let r = s.post_scene(&long_scene()).await;
+    let retry = r.headers().get("retry-after").map(|v| v.to_str().unwrap().parse::<u32>().unwrap());
+    assert!(retry.is_some_and(|s| (1..=60).contains(&s)), "{retry:?}");
+    error_of(r, 429, "queue_full").await;
+    // Cancelling the queued job is immediate and frees its slot.
+    let r = s.client.post(s.url(&format!("/v1/jobs/{b}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status(), 202);
+    assert_eq!(r.json::<Value>().await.unwrap()["state"], "cancelled");
+    let c = s.submit(&scene(8, 8, "reference", 1)).await;
+    let r = s.client.post(s.url(&format!("/v1/jobs/{a}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status(), 202);
+    s.wait_state(&c, &["succeeded"], Duration::from_secs(10)).await;
+    assert_eq!(s.job(&b).await["state"], "cancelled");
+    s.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn routes_ids_and_methods_answer_json_errors() {
+    let s = Server::start(|_| {}).await;
+    let c = &s.client;
+    for (path, status, code) in [
+        ("/v1/jobs/not-a-uuid", 404, "not_found"),
+        ("/v1/jobs/0193a1b2-0000-7000-8000-000000000000", 404, "not_found"),
+        ("/v1/jobs/0193a1b2-0000-7000-8000-000000000000/frame", 404, "not_found"),
+        ("/v1/jobs/..%2F..%2Fetc%2Fpasswd/frame", 404, "not_found"),
+        ("/v1/nothing", 404, "not_found"),
+        ("/nothing", 404, "not_found"),
+    ] {
+        let r = c.get(s.url(path)).send().await.unwrap();
+        error_of(r, status, code).await;
+    }
+    let r = c.post(s.url("/v1/jobs/0193a1b2-0000-7000-8000-000000000000/cancel")).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+    let r = c.delete(s.url("/v1/jobs/zzz")).send().await.unwrap();
+    error_of(r, 404, "not_found").await;
+    let r = c.put(s.url("/v1/jobs")).send().await.unwrap();
+    error_of(r, 405, "method_not_allowed").await;
+    // Not a WebSocket request on the stream route.
+    let id = s.submit(&scene(8, 8, "reference", 1)).await;
+    let r = c.get(s.url(&format!("/v1/jobs/{id}/stream"))).send().await.unwrap();
+    assert!(r.status().is_client_error());
+    let b: Value = r.json().await.unwrap();
+    assert!(b["error"]["code"].is_string(), "{b}");
+    // Open routes.
+    let r = c.get(s.url("/")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    assert!(r.headers()["content-type"].to_str().unwrap().starts_with("text/html"));
+    let r = c.get(s.url("/v1/examples")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    let ex: Value = r.json().await.unwrap();
+    assert!(!ex["examples"].as_array().unwrap().is_empty(), "{ex}");
+    for e in ex["examples"].as_array().unwrap() {
+        assert!(e["name"].is_string() && e["scene"].is_object(), "{e}");
+    }
+    s.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_token_guards_v1_but_not_health_viewer_or_metrics() {
+    let s = Server::start(|c| c.token = Some("s3cret".into())).await;
+    let c = &s.client;
+    let r = c.get(s.url("/v1/jobs")).send().await.unwrap();
+    assert_eq!(r.headers()["www-authenticate"], "Bearer");
+    error_of(r, 401, "unauthorized").await;
+    let r = c.get(s.url("/v1/jobs")).bearer_auth("wrong").send().await.unwrap();
+    error_of(r, 401, "unauthorized").await;
+    let r = c.post(s.url("/v1/jobs")).json(&scene(8, 8, "reference", 1)).send().await.unwrap();
+    error_of(r, 401, "unauthorized").await;
+    // `?token=` is for WebSockets only.
+    let r = c.get(s.url("/v1/jobs?token=s3cret")).send().await.unwrap();
+    error_of(r, 401, "unauthorized").await;
+    for open in ["/", "/healthz", "/metrics"] {
+        assert_eq!(c.get(s.url(open)).send().await.unwrap().status(), 200, "{open}");
+    }
+    let r = c.post(s.url("/v1/jobs")).bearer_auth("s3cret").json(&scene(8, 8, "reference", 1)).send().await.unwrap();
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned();
+    // WebSocket: refused without the token, served with `?token=`.
+    let refused = tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream", s.addr)).await;
+    assert!(refused.is_err());
+    let mut ws = ws_connect(&s, &id, Some("s3cret")).await;
+    let (texts, _) = read_stream(&mut ws, Duration::from_secs(10)).await;
+    assert_eq!(texts.first().unwrap()["type"], "state");
+    assert_eq!(texts.last().unwrap()["type"], "done");
+    s.stop().await.unwrap();
+}
+
+/// tests/scenes-bad/: each NAME.json must get the code on line 1 of NAME.expect and the
+/// JSON path on line 2 (see its README.md); the server stays healthy throughout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_scenes_get_their_code_and_path() {
+    let s = Server::start(|_| {}).await;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes-bad");
+    let mut cases: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "json"))
+        .collect();
+    cases.sort();
+    assert!(!cases.is_empty(), "no cases in {}", dir.display());
+    let mut failures = Vec::new();
+    for case in &cases {
+        let body = std::fs::read(case).unwrap();
+        let expect = std::fs::read_to_string(case.with_extension("expect")).unwrap();
+        let mut lines = expect.lines();
+        let code = lines.next().unwrap_or("").trim().to_owned();
+        let path = lines.next().unwrap_or("").trim().to_owned();
+        let r = s.client.post(s.url("/v1/jobs")).body(body).send().await.unwrap();
+        let status = r.status().as_u16();
+        let b: Value = r.json().await.unwrap_or(Value::Null);
+        let want_status = match code.as_str() {
+            "invalid_json" => 400,
+            "invalid_scene" => 422,
+            "too_large" => 413,
+            other => panic!("{}: unknown expected code {other}", case.display()),
+        };
+        if status != want_status || b["error"]["code"] != code.as_str() || b["error"]["path"] != path.as_str() {
+            failures.push(format!("{}: want {want_status} {code} at {path:?}, got {status} {b}", case.display()));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    assert_eq!(s.client.get(s.url("/healthz")).send().await.unwrap().status(), 200);
+    let l: Value = s.client.get(s.url("/v1/jobs")).send().await.unwrap().json().await.unwrap();
+    assert_eq!(l["jobs"].as_array().unwrap().len(), 0, "no bad document became a job");
+    s.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
+    let s = Server::start(|c| c.max_body_bytes = 1 << 20).await;
+    let c = &s.client;
+    let good = scene(8, 8, "reference", 1).to_string();
+    let nested = format!("{}{}", "[".repeat(100_000), "]".repeat(100_000));
+    let nested_obj = format!("{}1{}", "{\"a\":".repeat(10_000), "}".repeat(10_000));
+    let cases: Vec<(&str, Vec<u8>, u16, &str)> = vec![
+        ("not json", b"hello, server".to_vec(), 400, "invalid_json"),
+        ("empty", Vec::new(), 400, "invalid_json"),
+        ("whitespace", b"  \n ".to_vec(), 400, "invalid_json"),
+        ("truncated", good.as_bytes()[..good.len() / 2].to_vec(), 400, "invalid_json"),
+        ("not utf-8", vec![0xff, 0xfe, b'{', b'}'], 400, "invalid_json"),
+        ("deeply nested array", nested.into_bytes(), 400, "invalid_json"),
+        ("deeply nested object", nested_obj.into_bytes(), 400, "invalid_json"),
+        ("NaN literal", good.replace("\"width\":8", "\"width\":NaN").into_bytes(), 400, "invalid_json"),
+        ("Infinity literal", good.replace("\"fov_y\":40", "\"fov_y\":Infinity").into_bytes(), 400, "invalid_json"),
+        ("array body", b"[1, 2, 3]".to_vec(), 422, "invalid_scene"),
+        ("oversized", vec![b' '; (1 << 20) + 1], 413, "too_large"),
+    ];
+    for (what, body, status, code) in cases {
+        let r = c.post(s.url("/v1/jobs")).header("content-type", "application/json").body(body).send().await.unwrap();
+        assert_eq!(r.status(), status, "{what}");
+        let b: Value = r.json().await.unwrap_or_else(|e| panic!("{what}: body is not JSON: {e}"));
+        assert_eq!(b["error"]["code"], code, "{what}: {b}");
+    }
+    // Numbers out of range: refused as a scene problem or as JSON, always at the field.
+    for (what, doc, field) in [
+        ("huge width", good.replace("\"width\":8", "\"width\":1e999"), "image.width"),
+        ("negative width", good.replace("\"width\":8", "\"width\":-8"), "image.width"),
+        ("width above u32", good.replace("\"width\":8", "\"width\":99999999999"), "image.width"),
+    ] {
+        let r = c.post(s.url("/v1/jobs")).body(doc).send().await.unwrap();
+        let st = r.status().as_u16();
+        let b: Value = r.json().await.unwrap();
+        assert!(matches!(st, 400 | 413 | 422), "{what}: {st} {b}");
+        if st != 400 {
+            assert_eq!(b["error"]["path"], field, "{what}: {b}");
+        }
+    }
+    // A chunked body (no Content-Length) over the limit is refused too: raw HTTP/1.1.
+    {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        let head = "POST /v1/jobs HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n";
+        sock.write_all(head.as_bytes()).await.unwrap();
+        let chunk = vec![b' '; 64 * 1024];
+        for _ in 0..20 {
+            // The server may answer and close early: stop writing then.
+            if sock.write_all(format!("{:x}\r\n", chunk.len()).as_bytes()).await.is_err()
+                || sock.write_all(&chunk).await.is_err()
+                || sock.write_all(b"\r\n").await.is_err()
+            {
+                break;
+            }
+        }
+        let _ = sock.write_all(b"0\r\n\r\n").await;
+        let mut resp = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(5), sock.read_to_end(&mut resp)).await;
+        let resp = String::from_utf8_lossy(&resp);
+        assert!(resp.starts_with("HTTP/1.1 413"), "{resp}");
+        assert!(resp.contains("\"too_large\""), "{resp}");
+    }
+    // Limits of the scene itself are 413 and name the limit.
+    let r = s.post_scene(&scene(20000, 20000, "reference", 1)).await;
+    let b = error_of(r, 413, "too_large").await;
+    assert!(b["error"]["path"].as_str().unwrap().starts_with("image"), "{b}");
+    // No `obj` object over the network: the server never reads its own files.
+    let mut sc = scene(8, 8, "reference", 1);
+    sc["objects"] = json!([{ "type": "obj", "path": "/etc/passwd", "material": "white" }]);
+    let r = s.post_scene(&sc).await;
+    let b = error_of(r, 422, "invalid_scene").await;
+    assert!(b["error"]["path"].as_str().unwrap().starts_with("objects[0]"), "{b}");
+
+    assert_eq!(c.get(s.url("/healthz")).send().await.unwrap().status(), 200);
+    let id = s.submit(&scene(8, 8, "reference", 1)).await;
+    s.wait_state(&id, &["succeeded"], Duration::from_secs(10)).await;
+    s.stop().await.unwrap();
+}
+
+/// Graceful shutdown puts a running job back to `queued`; the next start runs it to the end.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_requeues_running_jobs_and_a_restart_finishes_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start_in(dir.path(), |_| {}).await;
+    let long = s.submit(&long_scene()).await;
+    let small = s.submit(&scene(8, 8, "reference", 1)).await;
+    s.wait_state(&long, &["running"], Duration::from_secs(10)).await;
+    let mut ws = ws_connect(&s, &long, None).await;
+    let t0 = Instant::now();
+    s.stop().await.unwrap();
+    assert!(t0.elapsed() < Duration::from_secs(5), "shutdown took {:?}", t0.elapsed());
+    // The stream was closed by the server, not left hanging.
+    let _ = read_stream(&mut ws, Duration::from_secs(5)).await;
+
+    // Restart with a cheaper limit check: the long job would take long, so cancel it and
+    // watch the small one (queued behind it) complete; the long one was requeued.
+    let s = Server::start_in(dir.path(), |_| {}).await;
+    let j = s.job(&long).await;
+    assert!(j["state"] == "queued" || j["state"] == "running", "{j}");
+    assert!(j["finished_at"].is_null(), "{j}");
+    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    assert_eq!(r.status(), 202);
+    s.wait_state(&small, &["succeeded"], Duration::from_secs(10)).await;
+    s.stop().await.unwrap();
+}
+
+/// Many watchers on one job all get the end; the WebSocket gauge goes back to zero.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_watchers_share_one_job() {
+    let s = Server::start(|_| {}).await;
+    let id = s.submit(&scene(32, 32, "progressive", 4)).await;
+    let mut socks = Vec::new();
+    for _ in 0..8 {
+        socks.push(ws_connect(&s, &id, None).await);
+    }
+    for ws in &mut socks {
+        let (texts, pngs) = read_stream(ws, Duration::from_secs(30)).await;
+        assert_eq!(texts.first().unwrap()["type"], "state");
+        assert_eq!(texts.last().unwrap()["type"], "done", "{texts:?}");
+        assert!(!pngs.is_empty(), "everyone gets at least the final frame");
+        let _ = ws.close(None).await;
+    }
+    drop(socks);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let m = s.client.get(s.url("/metrics")).send().await.unwrap().text().await.unwrap();
+        if m.contains("glimpse_websocket_watchers 0") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "watchers never went back to 0: {m}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    // A client that connects and says nothing does not hold the server: close it.
+    let mut ws = ws_connect(&s, &id, None).await;
+    ws.send(Message::Close(None)).await.unwrap();
+    s.stop().await.unwrap();
+}

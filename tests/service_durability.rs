@@ -1,0 +1,129 @@
+//! Durability (service-api.md): the real binary is killed with SIGKILL while jobs run,
+//! started again on the same data folder, and every accepted job still succeeds; a job
+//! finished before the crash keeps its state, statistics and final image.
+
+use serde_json::{json, Value};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+async fn spawn(data: &std::path::Path, port: u16, client: &reqwest::Client) -> Proc {
+    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
+        .arg(data)
+        .args(["--workers", "1"])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let p = Proc(child);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while client.get(format!("http://127.0.0.1:{port}/healthz")).send().await.is_err() {
+        assert!(Instant::now() < deadline, "server did not come up");
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    p
+}
+
+fn scene(w: u32, spp: u32, mode: &str, seed: u64) -> Value {
+    json!({
+        "version": 1, "name": format!("job-{seed}"),
+        "image": { "width": w, "height": w },
+        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
+        "materials": { "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] } },
+        "objects": [ { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" } ],
+        "lights": [
+            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
+            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
+        ],
+        "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": seed }
+    })
+}
+
+async fn job(c: &reqwest::Client, base: &str, id: &str) -> Value {
+    c.get(format!("{base}/v1/jobs/{id}")).send().await.unwrap().json().await.unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigkill_then_restart_loses_no_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let base = format!("http://127.0.0.1:{port}");
+    let c = reqwest::Client::new();
+    let mut server = spawn(dir.path(), port, &c).await;
+
+    // One job finished before the crash.
+    let r = c.post(format!("{base}/v1/jobs")).json(&scene(16, 1, "reference", 0)).send().await.unwrap();
+    assert_eq!(r.status(), 201);
+    let done_id = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while job(&c, &base, &done_id).await["state"] != "succeeded" {
+        assert!(Instant::now() < deadline);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let png_before = c.get(format!("{base}/v1/jobs/{done_id}/frame")).send().await.unwrap().bytes().await.unwrap();
+
+    // Several accepted jobs, the first long enough to be caught running.
+    let mut ids = Vec::new();
+    for (k, (w, spp, mode)) in
+        [(128, 256, "reference"), (32, 4, "progressive"), (24, 2, "reference"), (32, 4, "progressive")]
+            .into_iter()
+            .enumerate()
+    {
+        let r = c.post(format!("{base}/v1/jobs")).json(&scene(w, spp, mode, k as u64 + 1)).send().await.unwrap();
+        assert_eq!(r.status(), 201);
+        ids.push(r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned());
+    }
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while job(&c, &base, &ids[0]).await["state"] != "running" {
+        assert!(Instant::now() < deadline, "the first job never ran");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    server.0.kill().unwrap(); // SIGKILL: no shutdown code runs
+    server.0.wait().unwrap();
+    drop(server);
+
+    let server = spawn(dir.path(), port, &c).await;
+    // The finished job kept everything.
+    let j = job(&c, &base, &done_id).await;
+    assert_eq!(j["state"], "succeeded", "{j}");
+    assert_eq!(j["stats"]["width"], 16, "{j}");
+    let png_after = c.get(format!("{base}/v1/jobs/{done_id}/frame")).send().await.unwrap().bytes().await.unwrap();
+    assert_eq!(png_before, png_after);
+    // Every job accepted before the crash runs to the end, the interrupted one included.
+    let deadline = Instant::now() + Duration::from_secs(120);
+    for id in &ids {
+        loop {
+            let j = job(&c, &base, id).await;
+            match j["state"].as_str().unwrap() {
+                "succeeded" => {
+                    assert!(j["stats"]["pixels_traced"].as_u64().unwrap() > 0, "{j}");
+                    break;
+                }
+                "queued" | "running" => {}
+                other => panic!("job {id} ended {other}: {j}"),
+            }
+            assert!(Instant::now() < deadline, "job {id} did not finish after the restart");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let r = c.get(format!("{base}/v1/jobs/{id}/frame")).send().await.unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    let l: Value = c.get(format!("{base}/v1/jobs")).send().await.unwrap().json().await.unwrap();
+    assert_eq!(l["jobs"].as_array().unwrap().len(), 5);
+    drop(server);
+}
