@@ -6,8 +6,8 @@
 #   docker run -p 8080:8080 -e GLIMPSE_TOKEN=secret glimpse      # /v1 needs a bearer token
 #
 # Two stages: a full Rust toolchain builds a release binary; the runtime image holds only
-# that binary (SQLite and the viewer page are compiled in), curl for the health check and
-# an unprivileged user.
+# that binary (SQLite, the viewer page and the example scenes are compiled in; it links
+# libstdc++ for the FLIP metric), curl for the health check and an unprivileged user.
 
 FROM rust:1-bookworm AS build
 WORKDIR /src
@@ -33,7 +33,7 @@ RUN touch src/main.rs src/lib.rs \
 
 FROM debian:bookworm-slim AS runtime
 RUN apt-get update \
- && apt-get install -y --no-install-recommends curl ca-certificates \
+ && apt-get install -y --no-install-recommends curl ca-certificates libstdc++6 \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --user-group --home-dir /data --shell /usr/sbin/nologin glimpse \
  && mkdir -p /data \

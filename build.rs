@@ -22,9 +22,14 @@ fn main() {
     let mut out = String::from("&[\n");
     for p in &scenes {
         let name = p.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
-        let _ = writeln!(out, "    ({name:?}, include_str!({:?})),", p.display().to_string());
+        let _ = writeln!(
+            out,
+            "    ({name:?}, include_str!({:?})),",
+            p.display().to_string()
+        );
     }
     out.push(']');
-    let dest = Path::new(&std::env::var("OUT_DIR").expect("cargo sets OUT_DIR")).join("examples.rs");
+    let dest =
+        Path::new(&std::env::var("OUT_DIR").expect("cargo sets OUT_DIR")).join("examples.rs");
     std::fs::write(dest, out).expect("OUT_DIR is writable");
 }

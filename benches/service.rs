@@ -52,16 +52,28 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 async fn submit(c: &reqwest::Client, base: &str, doc: &Value) -> String {
-    let r = c.post(format!("{base}/v1/jobs")).json(doc).send().await.expect("post");
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .json(doc)
+        .send()
+        .await
+        .expect("post");
     assert_eq!(r.status(), 201);
-    r.json::<Value>().await.expect("json")["id"].as_str().expect("id").to_owned()
+    r.json::<Value>().await.expect("json")["id"]
+        .as_str()
+        .expect("id")
+        .to_owned()
 }
 
 async fn connect(addr: std::net::SocketAddr, id: &str) -> Ws {
-    tokio_tungstenite::connect_async(format!("ws://{addr}/v1/jobs/{id}/stream")).await.expect("ws").0
+    tokio_tungstenite::connect_async(format!("ws://{addr}/v1/jobs/{id}/stream"))
+        .await
+        .expect("ws")
+        .0
 }
 
 /// Reads until the first binary (PNG) message; returns its arrival time.
@@ -95,9 +107,19 @@ async fn until_done(ws: &mut Ws) -> (Instant, usize, f64) {
 }
 
 fn main() {
-    let runs: usize = std::env::var("GLIMPSE_BENCH_RUNS").ok().and_then(|s| s.parse().ok()).unwrap_or(5);
-    let size: u32 = std::env::var("GLIMPSE_BENCH_SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(512);
-    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().expect("runtime");
+    let runs: usize = std::env::var("GLIMPSE_BENCH_RUNS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    let size: u32 = std::env::var("GLIMPSE_BENCH_SIZE")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(512);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime");
     rt.block_on(async move {
         let dir = tempfile::tempdir().expect("tempdir");
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");

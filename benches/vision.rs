@@ -16,7 +16,11 @@ fn textured(w: u32, h: u32) -> LinearImage {
     Image::from_fn(w, h, |x, y| {
         let (fx, fy) = (x as f32, y as f32);
         let shade = 0.25 + 0.2 * (fx / w as f32) + 0.1 * (fy * 0.02).sin();
-        let checker = if ((x / 32) + (y / 32)) % 2 == 0 { 0.15 } else { 0.0 };
+        let checker = if ((x / 32) + (y / 32)) % 2 == 0 {
+            0.15
+        } else {
+            0.0
+        };
         let detail = 0.08 * (fx * 0.9).sin() * (fy * 0.7).cos();
         let v = (shade + checker + detail).max(0.0);
         Rgb::new(v * 1.1, v, v * 0.8 + 0.05 * ((fx * 0.05).cos() + 1.0))
@@ -46,8 +50,37 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let (w, h) = (512, 512);
     let a = textured(w, h);
-    let b = noisy(&a, 0.05, 12345);
-    let display = DisplayModel { peak_luminance: 100.0, black_luminance: 0.5, exposure: 1.0, pixels_per_degree: 28.0 };
+    // Pair 1 (the issue's): a textured image and a uniformly noisy copy.
+    run_pair(
+        "textured vs noisy copy (5 % noise everywhere)",
+        &a,
+        &noisy(&a, 0.05, 12345),
+    );
+    // Pair 2: differences concentrated in one region, as between two progressive frames.
+    let strong = noisy(&a, 0.3, 777);
+    let weak = noisy(&a, 0.02, 4242);
+    let local = Image::from_fn(w, h, |x, y| {
+        if (64..320).contains(&x) && (128..384).contains(&y) {
+            *strong.get(x, y)
+        } else {
+            *weak.get(x, y)
+        }
+    });
+    run_pair(
+        "textured vs locally noisy copy (30 % in a 256x256 square, 2 % elsewhere)",
+        &a,
+        &local,
+    );
+}
+
+fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
+    let (w, h) = (a.width(), a.height());
+    let display = DisplayModel {
+        peak_luminance: 100.0,
+        black_luminance: 0.5,
+        exposure: 1.0,
+        pixels_per_degree: 28.0,
+    };
     let t = Instant::now();
     let model = VisionModel::new(display, w, h);
     let model_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -57,31 +90,66 @@ fn main() {
     let mut adapt = None;
     for i in 0..runs {
         let t = Instant::now();
-        let sa = model.decompose(&a).expect("finite");
-        let sb = model.decompose(&b).expect("finite");
+        let sa = model.decompose(a).expect("finite");
+        let sb = model.decompose(b).expect("finite");
         t_dec.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
         let f = metric::full_map(&model, &sa, &sb);
         t_full.push(t.elapsed().as_secs_f64() * 1e3);
         full_mean = black_box(f.mean());
         let t = Instant::now();
-        let m = metric::block_map(&model, &sa, &sb, &[], &MetricParams { homogeneity: 0.8, epsilon: 1.0, seed: i });
+        let m = metric::block_map(
+            &model,
+            &sa,
+            &sb,
+            &[],
+            &MetricParams {
+                homogeneity: 0.8,
+                epsilon: 1.0,
+                seed: i,
+            },
+        );
         t_adapt.push(t.elapsed().as_secs_f64() * 1e3);
         adapt = Some(black_box(m));
     }
-    let sa = model.decompose(&a).expect("finite");
+    let sa = model.decompose(a).expect("finite");
     let adapt = adapt.expect("ran");
     let (dec, full, ad) = (median(t_dec), median(t_full), median(t_adapt));
     let px = f64::from(w * h);
+    println!("== {name}");
     println!("vision bench {w}x{h}, ppd 28, {} bands, {runs} runs (medians), model construction {model_ms:.2} ms", model.bands().len());
     println!("  decompose both images     {dec:8.2} ms");
-    println!("  full map (per pixel)      {full:8.2} ms   -> full model total {:8.2} ms", dec + full);
-    println!("  adaptive block map        {ad:8.2} ms   -> adaptive total   {:8.2} ms", dec + ad);
+    println!(
+        "  full map (per pixel)      {full:8.2} ms   -> full model total {:8.2} ms",
+        dec + full
+    );
+    println!(
+        "  adaptive block map        {ad:8.2} ms   -> adaptive total   {:8.2} ms",
+        dec + ad
+    );
     println!("  speed ratio map only      {:8.2}x", full / ad);
-    println!("  speed ratio incl. decomp  {:8.2}x", (dec + full) / (dec + ad));
+    println!(
+        "  speed ratio incl. decomp  {:8.2}x",
+        (dec + full) / (dec + ad)
+    );
     println!("  mean distance full        {full_mean:8.4} JND");
-    println!("  mean distance adaptive    {:8.4} JND (last run)", adapt.mean());
-    println!("  relative difference       {:8.2} %", 100.0 * (adapt.mean() - full_mean).abs() / full_mean.max(1e-12));
-    println!("  pixels evaluated          full {} / adaptive {} ({:.1} %), {} leaves", w * h, adapt.pixels_evaluated, 100.0 * adapt.pixels_evaluated as f64 / px, adapt.leaves.len());
-    println!("  ContrastStack             {:8.2} bytes/pixel/image", sa.bytes() as f64 / px);
+    println!(
+        "  mean distance adaptive    {:8.4} JND (last run)",
+        adapt.mean()
+    );
+    println!(
+        "  relative difference       {:8.2} %",
+        100.0 * (adapt.mean() - full_mean).abs() / full_mean.max(1e-12)
+    );
+    println!(
+        "  pixels evaluated          full {} / adaptive {} ({:.1} %), {} leaves",
+        w * h,
+        adapt.pixels_evaluated,
+        100.0 * adapt.pixels_evaluated as f64 / px,
+        adapt.leaves.len()
+    );
+    println!(
+        "  ContrastStack             {:8.2} bytes/pixel/image",
+        sa.bytes() as f64 / px
+    );
 }

@@ -47,6 +47,7 @@ trap cleanup EXIT
 
 # Generated scenes are valid documents of any size the schema allows: keep each render
 # cheap (small images, short queue) so the run measures the API, not the renderer.
+: >"$LOG" # truncate now: the background redirection may happen after the first grep
 "$BIN" serve --addr 127.0.0.1:0 --data "$DATA" --workers 1 --queue 8 --max-pixels 4096 >"$LOG" 2>&1 &
 SERVER_PID=$!
 BASE=""

@@ -314,7 +314,6 @@ fn the_step_edge_is_refined_where_it_is() {
         }
     }
     let (fnear, ffar) = (tn as f64 / nn as f64, tf as f64 / nf as f64);
-    eprintln!("near {fnear} far {ffar} stats {:?}", last.stats);
     assert!(fnear > 2.0 * ffar, "near {fnear} far {ffar}");
     // And the interpolated step is sharp: mean error against the truth is small.
     let truth = step(w);
@@ -341,7 +340,6 @@ fn dark_display_traces_fewer_pixels() {
         let mut s = scene(w, h, RenderMode::Progressive);
         s.display.exposure = exposure;
         let (last, _) = run(&s, &oracle(w, h, tex), &RenderOptions::default());
-        eprintln!("exposure {exposure}: {:?}", last.stats);
         last.stats.pixel_fraction
     };
     let (bright, dark) = (frac(1.0), frac(1.0 / 256.0));

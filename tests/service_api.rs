@@ -35,7 +35,13 @@ impl Server {
             let _ = rx.await;
         }));
         let client = reqwest::Client::new();
-        let s = Self { addr, client, stop: Some(tx), task: Some(task), _dir: None };
+        let s = Self {
+            addr,
+            client,
+            stop: Some(tx),
+            task: Some(task),
+            _dir: None,
+        };
         // Ready once /healthz answers.
         let deadline = Instant::now() + Duration::from_secs(10);
         while s.client.get(s.url("/healthz")).send().await.is_err() {
@@ -51,7 +57,10 @@ impl Server {
             let _ = tx.send(());
         }
         let task = self.task.take().unwrap();
-        tokio::time::timeout(Duration::from_secs(10), task).await.expect("shutdown took > 10 s").unwrap()
+        tokio::time::timeout(Duration::from_secs(10), task)
+            .await
+            .expect("shutdown took > 10 s")
+            .unwrap()
     }
 
     fn url(&self, p: &str) -> String {
@@ -59,7 +68,12 @@ impl Server {
     }
 
     async fn post_scene(&self, scene: &Value) -> reqwest::Response {
-        self.client.post(self.url("/v1/jobs")).json(scene).send().await.unwrap()
+        self.client
+            .post(self.url("/v1/jobs"))
+            .json(scene)
+            .send()
+            .await
+            .unwrap()
     }
 
     async fn submit(&self, scene: &Value) -> String {
@@ -74,7 +88,12 @@ impl Server {
     }
 
     async fn job(&self, id: &str) -> Value {
-        let r = self.client.get(self.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+        let r = self
+            .client
+            .get(self.url(&format!("/v1/jobs/{id}")))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 200);
         r.json().await.unwrap()
     }
@@ -87,7 +106,10 @@ impl Server {
             if states.iter().any(|s| j["state"] == *s) {
                 return j;
             }
-            assert!(Instant::now() < deadline, "job {id} never reached {states:?}: {j}");
+            assert!(
+                Instant::now() < deadline,
+                "job {id} never reached {states:?}: {j}"
+            );
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
     }
@@ -135,7 +157,12 @@ async fn error_of(r: reqwest::Response, status: u16, code: &str) -> Value {
     assert_eq!(r.status(), status);
     let b: Value = r.json().await.unwrap();
     assert_eq!(b["error"]["code"], code, "{b}");
-    assert!(b["error"]["message"].as_str().is_some_and(|m| !m.is_empty()), "{b}");
+    assert!(
+        b["error"]["message"]
+            .as_str()
+            .is_some_and(|m| !m.is_empty()),
+        "{b}"
+    );
     assert!(b["error"].get("path").is_some(), "{b}");
     b
 }
@@ -149,11 +176,15 @@ fn png_size(b: &[u8]) -> (u32, u32) {
     (img.width(), img.height())
 }
 
-type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 async fn ws_connect(s: &Server, id: &str, token: Option<&str>) -> Ws {
     let q = token.map(|t| format!("?token={t}")).unwrap_or_default();
-    let (ws, _) = tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream{q}", s.addr)).await.unwrap();
+    let (ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream{q}", s.addr))
+            .await
+            .unwrap();
     ws
 }
 
@@ -164,7 +195,9 @@ async fn read_stream(ws: &mut Ws, within: Duration) -> (Vec<Value>, Vec<Vec<u8>>
     let mut expect_binary = false;
     let deadline = tokio::time::Instant::now() + within;
     loop {
-        let m = tokio::time::timeout_at(deadline, ws.next()).await.expect("stream did not end in time");
+        let m = tokio::time::timeout_at(deadline, ws.next())
+            .await
+            .expect("stream did not end in time");
         match m {
             Some(Ok(Message::Text(t))) => {
                 assert!(!expect_binary, "a frame text must be followed by its PNG");
@@ -194,27 +227,51 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     let sc = scene(48, 48, "progressive", 8);
     let id = s.submit(&sc).await;
     let mut ws = ws_connect(&s, &id, None).await;
-    let first = tokio::time::timeout(Duration::from_secs(5), ws.next()).await.unwrap().unwrap().unwrap();
+    let first = tokio::time::timeout(Duration::from_secs(5), ws.next())
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
     let first: Value = serde_json::from_str(first.to_text().unwrap()).unwrap();
     assert_eq!(first["type"], "state");
     assert_eq!(first["job"]["id"], id.as_str());
     assert_eq!(first["job"]["state"], "queued");
-    let r = s.client.post(s.url(&format!("/v1/jobs/{blocker}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{blocker}/cancel")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 202);
 
     let (texts, pngs) = read_stream(&mut ws, Duration::from_secs(60)).await;
     let frames: Vec<&Value> = texts.iter().filter(|t| t["type"] == "frame").collect();
-    assert!(frames.len() >= 2, "expected at least 2 frames, got {texts:?}");
+    assert!(
+        frames.len() >= 2,
+        "expected at least 2 frames, got {texts:?}"
+    );
     assert_eq!(pngs.len(), frames.len());
-    let iters: Vec<u64> = frames.iter().map(|f| f["iteration"].as_u64().unwrap()).collect();
-    assert!(iters.windows(2).all(|w| w[0] < w[1]), "iterations must increase: {iters:?}");
+    let iters: Vec<u64> = frames
+        .iter()
+        .map(|f| f["iteration"].as_u64().unwrap())
+        .collect();
+    assert!(
+        iters.windows(2).all(|w| w[0] < w[1]),
+        "iterations must increase: {iters:?}"
+    );
     for f in &frames {
-        assert!(f["layers"].as_array().unwrap().iter().any(|l| l == "image"), "{f}");
+        assert!(
+            f["layers"].as_array().unwrap().iter().any(|l| l == "image"),
+            "{f}"
+        );
         let p = &f["progress"];
         assert!(p["pixels_traced"].as_u64().unwrap() > 0, "{p}");
         let frac = p["pixel_fraction"].as_f64().unwrap();
         assert!(frac > 0.0 && frac <= 1.0, "{p}");
-        assert!(p.get("eta_ms").is_some() && p.get("elapsed_ms").is_some(), "{p}");
+        assert!(
+            p.get("eta_ms").is_some() && p.get("elapsed_ms").is_some(),
+            "{p}"
+        );
     }
     for p in &pngs {
         assert!(is_png(p));
@@ -225,8 +282,17 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert_eq!(done["job"]["state"], "succeeded");
     let stats = &done["job"]["stats"];
     for k in [
-        "width", "height", "mode", "iterations", "pixels_traced", "pixel_fraction", "total_ms", "trace_ms",
-        "metric_ms", "triangulate_ms", "final_mean_distance",
+        "width",
+        "height",
+        "mode",
+        "iterations",
+        "pixels_traced",
+        "pixel_fraction",
+        "total_ms",
+        "trace_ms",
+        "metric_ms",
+        "triangulate_ms",
+        "final_mean_distance",
     ] {
         assert!(stats.get(k).is_some(), "stats lacks {k}: {stats}");
     }
@@ -236,29 +302,64 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     // The job object agrees, with timestamps in order.
     let j = s.job(&id).await;
     assert_eq!(j["state"], "succeeded");
-    let (c, st, fi) =
-        (j["created_at"].as_str().unwrap(), j["started_at"].as_str().unwrap(), j["finished_at"].as_str().unwrap());
+    let (c, st, fi) = (
+        j["created_at"].as_str().unwrap(),
+        j["started_at"].as_str().unwrap(),
+        j["finished_at"].as_str().unwrap(),
+    );
     assert!(c.ends_with('Z') && c <= st && st <= fi, "{j}");
 
     // Every layer, as PNG of the image size; the EXR; bad parameters.
     for layer in ["image", "samples", "distance", "classes"] {
-        let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?layer={layer}"))).send().await.unwrap();
+        let r = s
+            .client
+            .get(s.url(&format!("/v1/jobs/{id}/frame?layer={layer}")))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 200, "layer {layer}");
         assert_eq!(r.headers()["content-type"], "image/png");
         let b = r.bytes().await.unwrap();
         assert_eq!(png_size(&b), (48, 48), "layer {layer}");
     }
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame"))).send().await.unwrap();
-    assert_eq!(r.bytes().await.unwrap().to_vec(), *pngs.last().unwrap(), "default layer = last streamed image");
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?format=exr"))).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        r.bytes().await.unwrap().to_vec(),
+        *pngs.last().unwrap(),
+        "default layer = last streamed image"
+    );
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame?format=exr")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 200);
     let exr = glimpse::raster::decode_image(&r.bytes().await.unwrap()).unwrap();
     assert_eq!((exr.width(), exr.height()), (48, 48));
     assert!(!exr.has_non_finite());
     assert!(exr.mean()[0] > 0.0, "a lit sphere is not black");
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?layer=depth"))).send().await.unwrap();
-    assert_eq!(error_of(r, 400, "invalid_parameter").await["error"]["path"], "layer");
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame?format=gif"))).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame?layer=depth")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        error_of(r, 400, "invalid_parameter").await["error"]["path"],
+        "layer"
+    );
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame?format=gif")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 400, "invalid_parameter").await;
 
     // A late joiner on a finished job: state, the stored final frame, done.
@@ -269,36 +370,99 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert_eq!(pngs.len(), 1);
 
     // List: newest first, filters, bad parameters.
-    let l: Value = s.client.get(s.url("/v1/jobs")).send().await.unwrap().json().await.unwrap();
-    let ids: Vec<&str> = l["jobs"].as_array().unwrap().iter().map(|j| j["id"].as_str().unwrap()).collect();
+    let l: Value = s
+        .client
+        .get(s.url("/v1/jobs"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let ids: Vec<&str> = l["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["id"].as_str().unwrap())
+        .collect();
     assert_eq!(ids, [id.as_str(), blocker.as_str()]);
-    let l: Value = s.client.get(s.url("/v1/jobs?state=cancelled")).send().await.unwrap().json().await.unwrap();
+    let l: Value = s
+        .client
+        .get(s.url("/v1/jobs?state=cancelled"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
     assert_eq!(l["jobs"][0]["id"], blocker.as_str());
-    let l: Value = s.client.get(s.url("/v1/jobs?limit=1")).send().await.unwrap().json().await.unwrap();
+    let l: Value = s
+        .client
+        .get(s.url("/v1/jobs?limit=1"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
     for bad in ["state=done", "limit=0", "limit=501", "limit=ten"] {
-        let r = s.client.get(s.url(&format!("/v1/jobs?{bad}"))).send().await.unwrap();
+        let r = s
+            .client
+            .get(s.url(&format!("/v1/jobs?{bad}")))
+            .send()
+            .await
+            .unwrap();
         let b = error_of(r, 400, "invalid_parameter").await;
         assert_eq!(b["error"]["path"], bad.split('=').next().unwrap());
     }
 
     // Metrics count what happened.
-    let m = s.client.get(s.url("/metrics")).send().await.unwrap().text().await.unwrap();
+    let m = s
+        .client
+        .get(s.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
     assert!(m.contains("glimpse_jobs{state=\"succeeded\"} 1"), "{m}");
     assert!(m.contains("glimpse_jobs{state=\"cancelled\"} 1"), "{m}");
     assert!(m.contains("glimpse_queue_depth 0"), "{m}");
     assert!(m.contains("glimpse_pixels_traced_total "), "{m}");
     assert!(!m.contains("glimpse_pixels_traced_total 0\n"), "{m}");
+    assert!(!m.contains("glimpse_render_seconds_total 0.000000"), "{m}");
 
     // Delete: 204, then gone (404 everywhere), a second delete 404.
-    let r = s.client.delete(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 204);
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 404, "not_found").await;
-    let r = s.client.get(s.url(&format!("/v1/jobs/{id}/frame"))).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 404, "not_found").await;
-    let r = s.client.delete(s.url(&format!("/v1/jobs/{id}"))).send().await.unwrap();
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 404, "not_found").await;
     s.stop().await.unwrap();
 }
@@ -307,33 +471,71 @@ async fn submit_stream_frames_layers_exr_list_delete() {
 async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
     let s = Server::start(|_| {}).await;
     let long = s.submit(&long_scene()).await;
-    s.wait_state(&long, &["running"], Duration::from_secs(10)).await;
+    s.wait_state(&long, &["running"], Duration::from_secs(10))
+        .await;
     // Still running: no delete, and no frame yet (a reference render has one at the end).
-    let r = s.client.delete(s.url(&format!("/v1/jobs/{long}"))).send().await.unwrap();
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{long}")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 409, "conflict").await;
-    let r = s.client.get(s.url(&format!("/v1/jobs/{long}/frame"))).send().await.unwrap();
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{long}/frame")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 404, "not_found").await;
 
     let small = s.submit(&scene(16, 16, "reference", 1)).await;
     let t0 = Instant::now();
-    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 202);
-    let j = s.wait_state(&long, &["cancelled"], Duration::from_secs(5)).await;
+    let j = s
+        .wait_state(&long, &["cancelled"], Duration::from_secs(5))
+        .await;
     assert!(j["finished_at"].is_string());
     // The worker is free at once: the queued job runs to the end right after.
-    s.wait_state(&small, &["succeeded"], Duration::from_secs(10)).await;
-    assert!(t0.elapsed() < Duration::from_secs(5), "cancel took {:?}", t0.elapsed());
+    s.wait_state(&small, &["succeeded"], Duration::from_secs(10))
+        .await;
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "cancel took {:?}",
+        t0.elapsed()
+    );
 
-    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 409, "conflict").await;
-    let r = s.client.post(s.url(&format!("/v1/jobs/{small}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{small}/cancel")))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 409, "conflict").await;
     // A stream of a cancelled job ends with done and the cancelled state.
     let mut ws = ws_connect(&s, &long, None).await;
     let (texts, _) = read_stream(&mut ws, Duration::from_secs(5)).await;
     assert_eq!(texts.last().unwrap()["type"], "done");
     assert_eq!(texts.last().unwrap()["job"]["state"], "cancelled");
-    let r = s.client.delete(s.url(&format!("/v1/jobs/{long}"))).send().await.unwrap();
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{long}")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 204);
     s.stop().await.unwrap();
 }
@@ -342,20 +544,35 @@ async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
 async fn a_full_queue_is_429_with_retry_after_and_queued_jobs_cancel_at_once() {
     let s = Server::start(|c| c.queue_capacity = 1).await;
     let a = s.submit(&long_scene()).await;
-    s.wait_state(&a, &["running"], Duration::from_secs(10)).await;
+    s.wait_state(&a, &["running"], Duration::from_secs(10))
+        .await;
     let b = s.submit(&long_scene()).await; // waits: the queue is now full
     let r = s.post_scene(&long_scene()).await;
-    let retry = r.headers().get("retry-after").map(|v| v.to_str().unwrap().parse::<u32>().unwrap());
+    let retry = r
+        .headers()
+        .get("retry-after")
+        .map(|v| v.to_str().unwrap().parse::<u32>().unwrap());
     assert!(retry.is_some_and(|s| (1..=60).contains(&s)), "{retry:?}");
     error_of(r, 429, "queue_full").await;
     // Cancelling the queued job is immediate and frees its slot.
-    let r = s.client.post(s.url(&format!("/v1/jobs/{b}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{b}/cancel")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 202);
     assert_eq!(r.json::<Value>().await.unwrap()["state"], "cancelled");
     let c = s.submit(&scene(8, 8, "reference", 1)).await;
-    let r = s.client.post(s.url(&format!("/v1/jobs/{a}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{a}/cancel")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 202);
-    s.wait_state(&c, &["succeeded"], Duration::from_secs(10)).await;
+    s.wait_state(&c, &["succeeded"], Duration::from_secs(10))
+        .await;
     assert_eq!(s.job(&b).await["state"], "cancelled");
     s.stop().await.unwrap();
 }
@@ -366,8 +583,16 @@ async fn routes_ids_and_methods_answer_json_errors() {
     let c = &s.client;
     for (path, status, code) in [
         ("/v1/jobs/not-a-uuid", 404, "not_found"),
-        ("/v1/jobs/0193a1b2-0000-7000-8000-000000000000", 404, "not_found"),
-        ("/v1/jobs/0193a1b2-0000-7000-8000-000000000000/frame", 404, "not_found"),
+        (
+            "/v1/jobs/0193a1b2-0000-7000-8000-000000000000",
+            404,
+            "not_found",
+        ),
+        (
+            "/v1/jobs/0193a1b2-0000-7000-8000-000000000000/frame",
+            404,
+            "not_found",
+        ),
         ("/v1/jobs/..%2F..%2Fetc%2Fpasswd/frame", 404, "not_found"),
         ("/v1/nothing", 404, "not_found"),
         ("/nothing", 404, "not_found"),
@@ -375,7 +600,11 @@ async fn routes_ids_and_methods_answer_json_errors() {
         let r = c.get(s.url(path)).send().await.unwrap();
         error_of(r, status, code).await;
     }
-    let r = c.post(s.url("/v1/jobs/0193a1b2-0000-7000-8000-000000000000/cancel")).send().await.unwrap();
+    let r = c
+        .post(s.url("/v1/jobs/0193a1b2-0000-7000-8000-000000000000/cancel"))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 404, "not_found").await;
     let r = c.delete(s.url("/v1/jobs/zzz")).send().await.unwrap();
     error_of(r, 404, "not_found").await;
@@ -383,14 +612,21 @@ async fn routes_ids_and_methods_answer_json_errors() {
     error_of(r, 405, "method_not_allowed").await;
     // Not a WebSocket request on the stream route.
     let id = s.submit(&scene(8, 8, "reference", 1)).await;
-    let r = c.get(s.url(&format!("/v1/jobs/{id}/stream"))).send().await.unwrap();
+    let r = c
+        .get(s.url(&format!("/v1/jobs/{id}/stream")))
+        .send()
+        .await
+        .unwrap();
     assert!(r.status().is_client_error());
     let b: Value = r.json().await.unwrap();
     assert!(b["error"]["code"].is_string(), "{b}");
     // Open routes.
     let r = c.get(s.url("/")).send().await.unwrap();
     assert_eq!(r.status(), 200);
-    assert!(r.headers()["content-type"].to_str().unwrap().starts_with("text/html"));
+    assert!(r.headers()["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/html"));
     let r = c.get(s.url("/v1/examples")).send().await.unwrap();
     assert_eq!(r.status(), 200);
     let ex: Value = r.json().await.unwrap();
@@ -408,21 +644,45 @@ async fn a_token_guards_v1_but_not_health_viewer_or_metrics() {
     let r = c.get(s.url("/v1/jobs")).send().await.unwrap();
     assert_eq!(r.headers()["www-authenticate"], "Bearer");
     error_of(r, 401, "unauthorized").await;
-    let r = c.get(s.url("/v1/jobs")).bearer_auth("wrong").send().await.unwrap();
+    let r = c
+        .get(s.url("/v1/jobs"))
+        .bearer_auth("wrong")
+        .send()
+        .await
+        .unwrap();
     error_of(r, 401, "unauthorized").await;
-    let r = c.post(s.url("/v1/jobs")).json(&scene(8, 8, "reference", 1)).send().await.unwrap();
+    let r = c
+        .post(s.url("/v1/jobs"))
+        .json(&scene(8, 8, "reference", 1))
+        .send()
+        .await
+        .unwrap();
     error_of(r, 401, "unauthorized").await;
     // `?token=` is for WebSockets only.
     let r = c.get(s.url("/v1/jobs?token=s3cret")).send().await.unwrap();
     error_of(r, 401, "unauthorized").await;
     for open in ["/", "/healthz", "/metrics"] {
-        assert_eq!(c.get(s.url(open)).send().await.unwrap().status(), 200, "{open}");
+        assert_eq!(
+            c.get(s.url(open)).send().await.unwrap().status(),
+            200,
+            "{open}"
+        );
     }
-    let r = c.post(s.url("/v1/jobs")).bearer_auth("s3cret").json(&scene(8, 8, "reference", 1)).send().await.unwrap();
+    let r = c
+        .post(s.url("/v1/jobs"))
+        .bearer_auth("s3cret")
+        .json(&scene(8, 8, "reference", 1))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned();
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
     // WebSocket: refused without the token, served with `?token=`.
-    let refused = tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream", s.addr)).await;
+    let refused =
+        tokio_tungstenite::connect_async(format!("ws://{}/v1/jobs/{id}/stream", s.addr)).await;
     assert!(refused.is_err());
     let mut ws = ws_connect(&s, &id, Some("s3cret")).await;
     let (texts, _) = read_stream(&mut ws, Duration::from_secs(10)).await;
@@ -452,7 +712,13 @@ async fn bad_scenes_get_their_code_and_path() {
         let mut lines = expect.lines();
         let code = lines.next().unwrap_or("").trim().to_owned();
         let path = lines.next().unwrap_or("").trim().to_owned();
-        let r = s.client.post(s.url("/v1/jobs")).body(body).send().await.unwrap();
+        let r = s
+            .client
+            .post(s.url("/v1/jobs"))
+            .body(body)
+            .send()
+            .await
+            .unwrap();
         let status = r.status().as_u16();
         let b: Value = r.json().await.unwrap_or(Value::Null);
         let want_status = match code.as_str() {
@@ -461,14 +727,40 @@ async fn bad_scenes_get_their_code_and_path() {
             "too_large" => 413,
             other => panic!("{}: unknown expected code {other}", case.display()),
         };
-        if status != want_status || b["error"]["code"] != code.as_str() || b["error"]["path"] != path.as_str() {
-            failures.push(format!("{}: want {want_status} {code} at {path:?}, got {status} {b}", case.display()));
+        if status != want_status
+            || b["error"]["code"] != code.as_str()
+            || b["error"]["path"] != path.as_str()
+        {
+            failures.push(format!(
+                "{}: want {want_status} {code} at {path:?}, got {status} {b}",
+                case.display()
+            ));
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
-    assert_eq!(s.client.get(s.url("/healthz")).send().await.unwrap().status(), 200);
-    let l: Value = s.client.get(s.url("/v1/jobs")).send().await.unwrap().json().await.unwrap();
-    assert_eq!(l["jobs"].as_array().unwrap().len(), 0, "no bad document became a job");
+    assert_eq!(
+        s.client
+            .get(s.url("/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .status(),
+        200
+    );
+    let l: Value = s
+        .client
+        .get(s.url("/v1/jobs"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        l["jobs"].as_array().unwrap().len(),
+        0,
+        "no bad document became a job"
+    );
     s.stop().await.unwrap();
 }
 
@@ -483,26 +775,78 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
         ("not json", b"hello, server".to_vec(), 400, "invalid_json"),
         ("empty", Vec::new(), 400, "invalid_json"),
         ("whitespace", b"  \n ".to_vec(), 400, "invalid_json"),
-        ("truncated", good.as_bytes()[..good.len() / 2].to_vec(), 400, "invalid_json"),
-        ("not utf-8", vec![0xff, 0xfe, b'{', b'}'], 400, "invalid_json"),
-        ("deeply nested array", nested.into_bytes(), 400, "invalid_json"),
-        ("deeply nested object", nested_obj.into_bytes(), 400, "invalid_json"),
-        ("NaN literal", good.replace("\"width\":8", "\"width\":NaN").into_bytes(), 400, "invalid_json"),
-        ("Infinity literal", good.replace("\"fov_y\":40", "\"fov_y\":Infinity").into_bytes(), 400, "invalid_json"),
+        (
+            "truncated",
+            good.as_bytes()[..good.len() / 2].to_vec(),
+            400,
+            "invalid_json",
+        ),
+        (
+            "not utf-8",
+            vec![0xff, 0xfe, b'{', b'}'],
+            400,
+            "invalid_json",
+        ),
+        (
+            "deeply nested array",
+            nested.into_bytes(),
+            400,
+            "invalid_json",
+        ),
+        (
+            "deeply nested object",
+            nested_obj.into_bytes(),
+            400,
+            "invalid_json",
+        ),
+        (
+            "NaN literal",
+            good.replace("\"width\":8", "\"width\":NaN").into_bytes(),
+            400,
+            "invalid_json",
+        ),
+        (
+            "Infinity literal",
+            good.replace("\"fov_y\":40", "\"fov_y\":Infinity")
+                .into_bytes(),
+            400,
+            "invalid_json",
+        ),
         ("array body", b"[1, 2, 3]".to_vec(), 422, "invalid_scene"),
         ("oversized", vec![b' '; (1 << 20) + 1], 413, "too_large"),
     ];
     for (what, body, status, code) in cases {
-        let r = c.post(s.url("/v1/jobs")).header("content-type", "application/json").body(body).send().await.unwrap();
+        let r = c
+            .post(s.url("/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), status, "{what}");
-        let b: Value = r.json().await.unwrap_or_else(|e| panic!("{what}: body is not JSON: {e}"));
+        let b: Value = r
+            .json()
+            .await
+            .unwrap_or_else(|e| panic!("{what}: body is not JSON: {e}"));
         assert_eq!(b["error"]["code"], code, "{what}: {b}");
     }
     // Numbers out of range: refused as a scene problem or as JSON, always at the field.
     for (what, doc, field) in [
-        ("huge width", good.replace("\"width\":8", "\"width\":1e999"), "image.width"),
-        ("negative width", good.replace("\"width\":8", "\"width\":-8"), "image.width"),
-        ("width above u32", good.replace("\"width\":8", "\"width\":99999999999"), "image.width"),
+        (
+            "huge width",
+            good.replace("\"width\":8", "\"width\":1e999"),
+            "image.width",
+        ),
+        (
+            "negative width",
+            good.replace("\"width\":8", "\"width\":-8"),
+            "image.width",
+        ),
+        (
+            "width above u32",
+            good.replace("\"width\":8", "\"width\":99999999999"),
+            "image.width",
+        ),
     ] {
         let r = c.post(s.url("/v1/jobs")).body(doc).send().await.unwrap();
         let st = r.status().as_u16();
@@ -521,7 +865,10 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
         let chunk = vec![b' '; 64 * 1024];
         for _ in 0..20 {
             // The server may answer and close early: stop writing then.
-            if sock.write_all(format!("{:x}\r\n", chunk.len()).as_bytes()).await.is_err()
+            if sock
+                .write_all(format!("{:x}\r\n", chunk.len()).as_bytes())
+                .await
+                .is_err()
                 || sock.write_all(&chunk).await.is_err()
                 || sock.write_all(b"\r\n").await.is_err()
             {
@@ -538,17 +885,27 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
     // Limits of the scene itself are 413 and name the limit.
     let r = s.post_scene(&scene(20000, 20000, "reference", 1)).await;
     let b = error_of(r, 413, "too_large").await;
-    assert!(b["error"]["path"].as_str().unwrap().starts_with("image"), "{b}");
+    assert!(
+        b["error"]["path"].as_str().unwrap().starts_with("image"),
+        "{b}"
+    );
     // No `obj` object over the network: the server never reads its own files.
     let mut sc = scene(8, 8, "reference", 1);
     sc["objects"] = json!([{ "type": "obj", "path": "/etc/passwd", "material": "white" }]);
     let r = s.post_scene(&sc).await;
     let b = error_of(r, 422, "invalid_scene").await;
-    assert!(b["error"]["path"].as_str().unwrap().starts_with("objects[0]"), "{b}");
+    assert!(
+        b["error"]["path"]
+            .as_str()
+            .unwrap()
+            .starts_with("objects[0]"),
+        "{b}"
+    );
 
     assert_eq!(c.get(s.url("/healthz")).send().await.unwrap().status(), 200);
     let id = s.submit(&scene(8, 8, "reference", 1)).await;
-    s.wait_state(&id, &["succeeded"], Duration::from_secs(10)).await;
+    s.wait_state(&id, &["succeeded"], Duration::from_secs(10))
+        .await;
     s.stop().await.unwrap();
 }
 
@@ -559,11 +916,16 @@ async fn shutdown_requeues_running_jobs_and_a_restart_finishes_them() {
     let s = Server::start_in(dir.path(), |_| {}).await;
     let long = s.submit(&long_scene()).await;
     let small = s.submit(&scene(8, 8, "reference", 1)).await;
-    s.wait_state(&long, &["running"], Duration::from_secs(10)).await;
+    s.wait_state(&long, &["running"], Duration::from_secs(10))
+        .await;
     let mut ws = ws_connect(&s, &long, None).await;
     let t0 = Instant::now();
     s.stop().await.unwrap();
-    assert!(t0.elapsed() < Duration::from_secs(5), "shutdown took {:?}", t0.elapsed());
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "shutdown took {:?}",
+        t0.elapsed()
+    );
     // The stream was closed by the server, not left hanging.
     let _ = read_stream(&mut ws, Duration::from_secs(5)).await;
 
@@ -573,9 +935,15 @@ async fn shutdown_requeues_running_jobs_and_a_restart_finishes_them() {
     let j = s.job(&long).await;
     assert!(j["state"] == "queued" || j["state"] == "running", "{j}");
     assert!(j["finished_at"].is_null(), "{j}");
-    let r = s.client.post(s.url(&format!("/v1/jobs/{long}/cancel"))).send().await.unwrap();
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 202);
-    s.wait_state(&small, &["succeeded"], Duration::from_secs(10)).await;
+    s.wait_state(&small, &["succeeded"], Duration::from_secs(10))
+        .await;
     s.stop().await.unwrap();
 }
 
@@ -598,11 +966,22 @@ async fn many_watchers_share_one_job() {
     drop(socks);
     let deadline = Instant::now() + Duration::from_secs(5);
     loop {
-        let m = s.client.get(s.url("/metrics")).send().await.unwrap().text().await.unwrap();
+        let m = s
+            .client
+            .get(s.url("/metrics"))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
         if m.contains("glimpse_websocket_watchers 0") {
             break;
         }
-        assert!(Instant::now() < deadline, "watchers never went back to 0: {m}");
+        assert!(
+            Instant::now() < deadline,
+            "watchers never went back to 0: {m}"
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     // A client that connects and says nothing does not hold the server: close it.

@@ -32,7 +32,12 @@ async fn spawn(data: &std::path::Path, port: u16, client: &reqwest::Client) -> P
         .unwrap();
     let p = Proc(child);
     let deadline = Instant::now() + Duration::from_secs(20);
-    while client.get(format!("http://127.0.0.1:{port}/healthz")).send().await.is_err() {
+    while client
+        .get(format!("http://127.0.0.1:{port}/healthz"))
+        .send()
+        .await
+        .is_err()
+    {
         assert!(Instant::now() < deadline, "server did not come up");
         tokio::time::sleep(Duration::from_millis(25)).await;
     }
@@ -55,7 +60,13 @@ fn scene(w: u32, spp: u32, mode: &str, seed: u64) -> Value {
 }
 
 async fn job(c: &reqwest::Client, base: &str, id: &str) -> Value {
-    c.get(format!("{base}/v1/jobs/{id}")).send().await.unwrap().json().await.unwrap()
+    c.get(format!("{base}/v1/jobs/{id}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -67,26 +78,55 @@ async fn sigkill_then_restart_loses_no_job() {
     let mut server = spawn(dir.path(), port, &c).await;
 
     // One job finished before the crash.
-    let r = c.post(format!("{base}/v1/jobs")).json(&scene(16, 1, "reference", 0)).send().await.unwrap();
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .json(&scene(16, 1, "reference", 0))
+        .send()
+        .await
+        .unwrap();
     assert_eq!(r.status(), 201);
-    let done_id = r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned();
+    let done_id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
     let deadline = Instant::now() + Duration::from_secs(20);
     while job(&c, &base, &done_id).await["state"] != "succeeded" {
         assert!(Instant::now() < deadline);
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let png_before = c.get(format!("{base}/v1/jobs/{done_id}/frame")).send().await.unwrap().bytes().await.unwrap();
+    let png_before = c
+        .get(format!("{base}/v1/jobs/{done_id}/frame"))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
 
     // Several accepted jobs, the first long enough to be caught running.
     let mut ids = Vec::new();
-    for (k, (w, spp, mode)) in
-        [(128, 256, "reference"), (32, 4, "progressive"), (24, 2, "reference"), (32, 4, "progressive")]
-            .into_iter()
-            .enumerate()
+    for (k, (w, spp, mode)) in [
+        (128, 256, "reference"),
+        (32, 4, "progressive"),
+        (24, 2, "reference"),
+        (32, 4, "progressive"),
+    ]
+    .into_iter()
+    .enumerate()
     {
-        let r = c.post(format!("{base}/v1/jobs")).json(&scene(w, spp, mode, k as u64 + 1)).send().await.unwrap();
+        let r = c
+            .post(format!("{base}/v1/jobs"))
+            .json(&scene(w, spp, mode, k as u64 + 1))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 201);
-        ids.push(r.json::<Value>().await.unwrap()["id"].as_str().unwrap().to_owned());
+        ids.push(
+            r.json::<Value>().await.unwrap()["id"]
+                .as_str()
+                .unwrap()
+                .to_owned(),
+        );
     }
     let deadline = Instant::now() + Duration::from_secs(20);
     while job(&c, &base, &ids[0]).await["state"] != "running" {
@@ -102,7 +142,14 @@ async fn sigkill_then_restart_loses_no_job() {
     let j = job(&c, &base, &done_id).await;
     assert_eq!(j["state"], "succeeded", "{j}");
     assert_eq!(j["stats"]["width"], 16, "{j}");
-    let png_after = c.get(format!("{base}/v1/jobs/{done_id}/frame")).send().await.unwrap().bytes().await.unwrap();
+    let png_after = c
+        .get(format!("{base}/v1/jobs/{done_id}/frame"))
+        .send()
+        .await
+        .unwrap()
+        .bytes()
+        .await
+        .unwrap();
     assert_eq!(png_before, png_after);
     // Every job accepted before the crash runs to the end, the interrupted one included.
     let deadline = Instant::now() + Duration::from_secs(120);
@@ -117,13 +164,27 @@ async fn sigkill_then_restart_loses_no_job() {
                 "queued" | "running" => {}
                 other => panic!("job {id} ended {other}: {j}"),
             }
-            assert!(Instant::now() < deadline, "job {id} did not finish after the restart");
+            assert!(
+                Instant::now() < deadline,
+                "job {id} did not finish after the restart"
+            );
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
-        let r = c.get(format!("{base}/v1/jobs/{id}/frame")).send().await.unwrap();
+        let r = c
+            .get(format!("{base}/v1/jobs/{id}/frame"))
+            .send()
+            .await
+            .unwrap();
         assert_eq!(r.status(), 200);
     }
-    let l: Value = c.get(format!("{base}/v1/jobs")).send().await.unwrap().json().await.unwrap();
+    let l: Value = c
+        .get(format!("{base}/v1/jobs"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
     assert_eq!(l["jobs"].as_array().unwrap().len(), 5);
     drop(server);
 }

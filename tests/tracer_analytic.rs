@@ -47,7 +47,7 @@ fn mean_over(t: &PathTracer, img: &LinearImage, object: u32) -> (Vec3, usize) {
         for x in 0..w {
             let all = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)]
                 .iter()
-                .all(|(dx, dy)| id(x + dx, y + dy).map_or(true, |i| i == object));
+                .all(|(dx, dy)| id(x + dx, y + dy).is_none_or(|i| i == object));
             if all {
                 s += *img.get(x as u32, y as u32);
                 n += 1;
@@ -630,4 +630,35 @@ fn reference_mean() -> Option<[f64; 3]> {
         }
     }
     None
+}
+
+/// The same comparison through the JSON contract: scenes/cornell-box.json parsed by
+/// `scene::parse_scene` (size, spp and bounces overridden to keep the test fast).
+#[test]
+fn cornell_box_json_mean_matches_tungsten_within_3_percent() {
+    use glimpse::scene::{parse_scene, Limits, SceneOrigin};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let json = std::fs::read_to_string(root.join("scenes/cornell-box.json"))
+        .expect("scenes/cornell-box.json");
+    let origin = SceneOrigin::File {
+        dir: root.join("scenes"),
+    };
+    let mut s =
+        parse_scene(&json, &origin, &Limits::command_line()).expect("cornell-box.json parses");
+    s.width = 96;
+    s.height = 96;
+    s.render.samples_per_pixel = 64;
+    s.render.max_bounces = 64;
+    let reference = reference_mean().unwrap_or([0.1963, 0.1275, 0.0361]);
+    let m = render(&PathTracer::new(&s)).mean();
+    for c in 0..3 {
+        let rel = (m[c] - reference[c]).abs() / reference[c];
+        assert!(
+            rel < 0.03,
+            "channel {c}: ours {:.4} vs Tungsten {:.4} ({:.1}%)",
+            m[c],
+            reference[c],
+            rel * 100.0
+        );
+    }
 }

@@ -6,7 +6,12 @@ use glimpse::raster::{Image, LinearImage, PixelCoord, Rgb};
 use glimpse::vision::{Calibration, DisplayModel, VisionError, VisionModel};
 
 fn display(peak: f32, black: f32, ppd: f32) -> DisplayModel {
-    DisplayModel { peak_luminance: peak, black_luminance: black, exposure: 1.0, pixels_per_degree: ppd }
+    DisplayModel {
+        peak_luminance: peak,
+        black_luminance: black,
+        exposure: 1.0,
+        pixels_per_degree: ppd,
+    }
 }
 
 fn default_display() -> DisplayModel {
@@ -39,7 +44,9 @@ fn textured(w: u32, h: u32) -> LinearImage {
 
 fn add_noise(img: &LinearImage, amp: f32, seed: u64) -> LinearImage {
     let n = noise_field(img.width(), img.height(), seed);
-    Image::from_fn(img.width(), img.height(), |x, y| *img.get(x, y) + Rgb::splat(amp * n.get(x, y)))
+    Image::from_fn(img.width(), img.height(), |x, y| {
+        *img.get(x, y) + Rgb::splat(amp * n.get(x, y))
+    })
 }
 
 fn mean_distance(model: &VisionModel, a: &LinearImage, b: &LinearImage) -> f64 {
@@ -70,7 +77,11 @@ fn identical_images_give_exactly_zero_and_uniform_gives_no_contrast() {
         let n = m.visible_contrasts(&su, 20, 17, &mut v);
         assert_eq!(n, 3 * m.bands().len());
         assert!(n > 0);
-        assert!(v[..n].iter().all(|x| x.abs() < 1e-3), "uniform {lum}: {:?}", &v[..n]);
+        assert!(
+            v[..n].iter().all(|x| x.abs() < 1e-3),
+            "uniform {lum}: {:?}",
+            &v[..n]
+        );
     }
 }
 
@@ -108,12 +119,20 @@ fn texture_masks_noise() {
     let flat = grey(w, h, 0.3);
     let t = noise_field(w, h, 99);
     // Random 2×2-pixel blocks at ±80 % around the mean: contrast in every band.
-    let tex = Image::from_fn(w, h, |x, y| Rgb::splat(0.3 * (1.0 + 1.6 * t.get(x & !1, y & !1))));
+    let tex = Image::from_fn(w, h, |x, y| {
+        Rgb::splat(0.3 * (1.0 + 1.6 * t.get(x & !1, y & !1)))
+    });
     let noise = |img: &LinearImage| add_noise(img, 0.03, 5);
     let d_flat = mean_distance(&m, &flat, &noise(&flat));
     let d_tex = mean_distance(&m, &tex, &noise(&tex));
-    assert!(d_flat > 1.0, "noise on a flat field should be visible: {d_flat}");
-    assert!(d_tex < 0.7 * d_flat, "masking: texture {d_tex} vs flat {d_flat}");
+    assert!(
+        d_flat > 1.0,
+        "noise on a flat field should be visible: {d_flat}"
+    );
+    assert!(
+        d_tex < 0.7 * d_flat,
+        "masking: texture {d_tex} vs flat {d_flat}"
+    );
 }
 
 #[test]
@@ -155,7 +174,12 @@ fn isoluminant_red_green_change_is_detected() {
         }
     });
     let (sa, sb) = (m.decompose(&a).unwrap(), m.decompose(&b).unwrap());
-    let max = m.full_map(&sa, &sb).pixels().iter().copied().fold(0f32, f32::max);
+    let max = m
+        .full_map(&sa, &sb)
+        .pixels()
+        .iter()
+        .copied()
+        .fold(0f32, f32::max);
     assert!(max > 1.0, "isoluminant change max distance {max}");
     // ... and it is carried by the chromatic channels, not A.
     let mut va = [0f32; 64];
@@ -196,12 +220,21 @@ fn threshold_grating_gives_one_jnd_in_its_band() {
     };
     for (n, band) in m.bands().iter().enumerate() {
         let peak = at10(0.5, n, band.cpd);
-        assert!((peak - 1.0).abs() < 0.1, "band {} cpd: peak |V_A| = {peak}", band.cpd);
+        assert!(
+            (peak - 1.0).abs() < 0.1,
+            "band {} cpd: peak |V_A| = {peak}",
+            band.cpd
+        );
         // §2.10.4: at 10 cd/m² the same contrast gives ≈ (W_A(10)/W_A(100))^p of it.
         let p = calib.transducer_exponent(band.sensitivity[0]);
         let want = (calib.w(0, 10.0) / calib.w(0, 100.0)).powf(p) as f32;
         let dim = at10(0.05, n, band.cpd);
-        assert!((dim / peak - want).abs() < 0.1 * want, "band {}: ratio {} want {want}", band.cpd, dim / peak);
+        assert!(
+            (dim / peak - want).abs() < 0.1 * want,
+            "band {}: ratio {} want {want}",
+            band.cpd,
+            dim / peak
+        );
     }
 }
 
@@ -249,9 +282,15 @@ fn non_finite_input_is_refused_with_the_pixel() {
     for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
         let mut img = grey(8, 6, 0.5);
         img.set(3, 2, Rgb::new(0.5, bad, 0.5));
-        assert_eq!(m.decompose(&img).err(), Some(VisionError::NonFinite { x: 3, y: 2 }));
+        assert_eq!(
+            m.decompose(&img).err(),
+            Some(VisionError::NonFinite { x: 3, y: 2 })
+        );
     }
-    assert!(matches!(m.decompose(&grey(7, 6, 0.5)), Err(VisionError::SizeMismatch { .. })));
+    assert!(matches!(
+        m.decompose(&grey(7, 6, 0.5)),
+        Err(VisionError::SizeMismatch { .. })
+    ));
 }
 
 #[test]
@@ -263,8 +302,17 @@ fn tiny_and_odd_sizes_work() {
         let (sa, sb) = (m.decompose(&a).unwrap(), m.decompose(&b).unwrap());
         let map = m.full_map(&sa, &sb);
         assert_eq!((map.width(), map.height()), (w, h));
-        assert!(map.pixels().iter().all(|d| d.is_finite() && *d >= 0.0), "{w}x{h}");
-        let bm = metric::block_map(&m, &sa, &sb, &[PixelCoord::new(0, 0)], &MetricParams::default());
+        assert!(
+            map.pixels().iter().all(|d| d.is_finite() && *d >= 0.0),
+            "{w}x{h}"
+        );
+        let bm = metric::block_map(
+            &m,
+            &sa,
+            &sb,
+            &[PixelCoord::new(0, 0)],
+            &MetricParams::default(),
+        );
         assert_eq!((bm.map.width(), bm.map.height()), (w, h));
         let area: u32 = bm.leaves.iter().map(|l| l.width * l.height).sum();
         assert_eq!(area, w * h);
@@ -276,7 +324,11 @@ fn tiny_and_odd_sizes_work() {
     let b = m.decompose(&grey(2, 2, 1.0)).unwrap();
     assert_eq!(m.distance_at(&a, &b, 1, 1), 0.0);
     // 7×9 at 28 ppd keeps the bands with 2σ_n ≤ 4.5 px: σ = 0.536, 1.071, 2.142 (8, 4, 2 cpd).
-    let cpd: Vec<f64> = VisionModel::new(default_display(), 7, 9).bands().iter().map(|b| b.cpd).collect();
+    let cpd: Vec<f64> = VisionModel::new(default_display(), 7, 9)
+        .bands()
+        .iter()
+        .map(|b| b.cpd)
+        .collect();
     assert_eq!(cpd, vec![8.0, 4.0, 2.0]);
 }
 

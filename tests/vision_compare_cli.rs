@@ -20,20 +20,43 @@ fn compare_writes_stats_and_map() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
     std::fs::write(&a, png(64, 48, |x, y| ((x * 7 + y * 3) % 200) as u8)).unwrap();
-    std::fs::write(&b, png(64, 48, |x, y| ((x * 7 + y * 3) % 200) as u8 + ((x * 13 + y * 29) % 11) as u8)).unwrap();
+    std::fs::write(
+        &b,
+        png(64, 48, |x, y| {
+            ((x * 7 + y * 3) % 200) as u8 + ((x * 13 + y * 29) % 11) as u8
+        }),
+    )
+    .unwrap();
     let (stats, map) = (dir.path().join("s.json"), dir.path().join("m.png"));
     for full in [false, true] {
         let mut cmd = glimpse();
-        cmd.arg("compare").arg(&a).arg(&b).arg("--stats").arg(&stats).arg("--map").arg(&map);
+        cmd.arg("compare")
+            .arg(&a)
+            .arg(&b)
+            .arg("--stats")
+            .arg(&stats)
+            .arg("--map")
+            .arg(&map);
         if full {
             cmd.arg("--full");
         }
         let out = cmd.output().unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let printed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+        let written: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
         assert_eq!(printed, written);
-        for k in ["mean_distance", "max_distance", "p95_distance", "pixels_evaluated", "ms"] {
+        for k in [
+            "mean_distance",
+            "max_distance",
+            "p95_distance",
+            "pixels_evaluated",
+            "ms",
+        ] {
             assert!(written[k].is_number(), "{k}");
         }
         let mean = written["mean_distance"].as_f64().unwrap();

@@ -10,12 +10,16 @@ use glimpse::tracer::{render_reference_with, PathTracer};
 use glimpse::vision::{DisplayModel, VisionModel};
 
 fn mean_distance_8_vs_64(file: &str, w: u32, h: u32) -> f64 {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(file);
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(file);
     let text = std::fs::read_to_string(&path).unwrap();
     let mut doc: serde_json::Value = serde_json::from_str(&text).unwrap();
     doc["image"]["width"] = w.into();
     doc["image"]["height"] = h.into();
-    let origin = SceneOrigin::File { dir: path.parent().unwrap().to_path_buf() };
+    let origin = SceneOrigin::File {
+        dir: path.parent().unwrap().to_path_buf(),
+    };
     let scene = parse_scene(&doc.to_string(), &origin, &Limits::command_line()).unwrap();
     let tracer = PathTracer::new(&scene);
     let cancel = CancelToken::new();
@@ -38,9 +42,14 @@ fn mean_distance_8_vs_64(file: &str, w: u32, h: u32) -> f64 {
 
 #[test]
 fn rough_floor_masks_noise_better_than_smooth_floor() {
-    let rough = mean_distance_8_vs_64("spheres-rough.json", 96, 72);
-    let smooth = mean_distance_8_vs_64("spheres-smooth.json", 96, 72);
-    eprintln!("mean distance 8 vs 64 spp: rough {rough:.3}, smooth {smooth:.3} (F&P04: 3.5 vs 5.32)");
+    let rough = mean_distance_8_vs_64("spheres-rough.json", 160, 120);
+    let smooth = mean_distance_8_vs_64("spheres-smooth.json", 160, 120);
+    eprintln!(
+        "mean distance 8 vs 64 spp: rough {rough:.3}, smooth {smooth:.3} (F&P04: 3.5 vs 5.32)"
+    );
     assert!(rough > 0.0);
-    assert!(rough < smooth, "rough {rough} should be below smooth {smooth}");
+    assert!(
+        rough < smooth,
+        "rough {rough} should be below smooth {smooth}"
+    );
 }

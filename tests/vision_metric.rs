@@ -5,7 +5,12 @@ use glimpse::raster::{Image, LinearImage, PixelCoord, Rgb};
 use glimpse::vision::{ContrastStack, DisplayModel, VisionModel};
 
 fn model(w: u32, h: u32) -> VisionModel {
-    let d = DisplayModel { peak_luminance: 100.0, black_luminance: 0.5, exposure: 1.0, pixels_per_degree: 28.0 };
+    let d = DisplayModel {
+        peak_luminance: 100.0,
+        black_luminance: 0.5,
+        exposure: 1.0,
+        pixels_per_degree: 28.0,
+    };
     VisionModel::new(d, w, h)
 }
 
@@ -24,7 +29,11 @@ fn textured(w: u32, h: u32) -> LinearImage {
     Image::from_fn(w, h, |x, y| {
         let (fx, fy) = (x as f32, y as f32);
         let shade = 0.25 + 0.2 * fx / w as f32;
-        let checker = if ((x / 16) + (y / 16)) % 2 == 0 { 0.15 } else { 0.0 };
+        let checker = if ((x / 16) + (y / 16)) % 2 == 0 {
+            0.15
+        } else {
+            0.0
+        };
         let v = shade + checker + 0.05 * (fx * 0.9).sin() * (fy * 0.7).cos();
         Rgb::new(v * 1.1, v, v * 0.8)
     })
@@ -79,15 +88,25 @@ fn block_map_is_deterministic_for_a_seed() {
     let a = textured(w, h);
     let b = noisy(&a, 0.3, 5, |x, _| x > 40);
     let (sa, sb) = stacks(&m, &a, &b);
-    let seeds: Vec<PixelCoord> = (0..200).map(|i| PixelCoord::new((i * 37) % w, (i * 11) % h)).collect();
-    let p = MetricParams { homogeneity: 0.8, epsilon: 1.0, seed: 42 };
+    let seeds: Vec<PixelCoord> = (0..200)
+        .map(|i| PixelCoord::new((i * 37) % w, (i * 11) % h))
+        .collect();
+    let p = MetricParams {
+        homogeneity: 0.8,
+        epsilon: 1.0,
+        seed: 42,
+    };
     let one = metric::block_map(&m, &sa, &sb, &seeds, &p);
     let two = metric::block_map(&m, &sa, &sb, &seeds, &p);
     assert_eq!(one.map.pixels(), two.map.pixels());
     assert_eq!(one.leaves, two.leaves);
     assert_eq!(one.pixels_evaluated, two.pixels_evaluated);
     let other = metric::block_map(&m, &sa, &sb, &seeds, &MetricParams { seed: 43, ..p });
-    assert_ne!(one.map.pixels(), other.map.pixels(), "a different seed draws other samples");
+    assert_ne!(
+        one.map.pixels(),
+        other.map.pixels(),
+        "a different seed draws other samples"
+    );
 }
 
 #[test]
@@ -102,10 +121,28 @@ fn heterogeneous_half_is_refined_and_quiet_half_is_not() {
     let bm = metric::block_map(&m, &sa, &sb, &[], &MetricParams::default());
     assert!(bm.leaves.len() > 4);
     let area = |l: &metric::Leaf| l.width * l.height;
-    let biggest_left = bm.leaves.iter().filter(|l| l.x + l.width <= 64).map(area).max().unwrap_or(0);
-    let biggest_right = bm.leaves.iter().filter(|l| l.x >= 80).map(area).max().unwrap_or(0);
-    assert!(biggest_left >= 32 * 32, "quiet side leaves too small: {biggest_left}");
-    assert!(biggest_right < biggest_left, "{biggest_right} vs {biggest_left}");
+    let biggest_left = bm
+        .leaves
+        .iter()
+        .filter(|l| l.x + l.width <= 64)
+        .map(area)
+        .max()
+        .unwrap_or(0);
+    let biggest_right = bm
+        .leaves
+        .iter()
+        .filter(|l| l.x >= 80)
+        .map(area)
+        .max()
+        .unwrap_or(0);
+    assert!(
+        biggest_left >= 32 * 32,
+        "quiet side leaves too small: {biggest_left}"
+    );
+    assert!(
+        biggest_right < biggest_left,
+        "{biggest_right} vs {biggest_left}"
+    );
     let total: u32 = bm.leaves.iter().map(area).sum();
     assert_eq!(total, w * h, "leaves tile the image");
     for l in &bm.leaves {
@@ -119,15 +156,30 @@ fn adaptive_mean_tracks_full_mean_with_fewer_evaluations() {
     let m = model(w, h);
     let a = textured(w, h);
     // Noise everywhere, stronger in one corner: a realistic progressive frame pair.
-    let b = noisy(&noisy(&a, 0.04, 3, |_, _| true), 0.2, 4, |x, y| x < 60 && y < 50);
+    let b = noisy(&noisy(&a, 0.04, 3, |_, _| true), 0.2, 4, |x, y| {
+        x < 60 && y < 50
+    });
     let (sa, sb) = stacks(&m, &a, &b);
     let full = metric::full_map(&m, &sa, &sb);
     assert_eq!(full.pixels_evaluated, (w * h) as usize);
-    let bm = metric::block_map(&m, &sa, &sb, &[], &MetricParams { seed: 7, ..MetricParams::default() });
+    let bm = metric::block_map(
+        &m,
+        &sa,
+        &sb,
+        &[],
+        &MetricParams {
+            seed: 7,
+            ..MetricParams::default()
+        },
+    );
     let (fm, am) = (full.mean(), bm.mean());
     assert!(fm > 0.5, "pair must differ visibly: {fm}");
     assert!((am - fm).abs() < 0.1 * fm, "adaptive {am} vs full {fm}");
-    assert!(bm.pixels_evaluated < full.pixels_evaluated / 2, "{}", bm.pixels_evaluated);
+    assert!(
+        bm.pixels_evaluated < full.pixels_evaluated / 2,
+        "{}",
+        bm.pixels_evaluated
+    );
 }
 
 #[test]
@@ -137,10 +189,15 @@ fn leaves_hold_every_sample_once_and_paint_their_mean() {
     let a = textured(w, h);
     let b = noisy(&a, 0.3, 2, |x, y| x < 50 && y > 20);
     let (sa, sb) = stacks(&m, &a, &b);
-    let seeds: Vec<PixelCoord> = (0..300).map(|i| PixelCoord::new((i * 7) % w, (i * 13) % h)).collect();
+    let seeds: Vec<PixelCoord> = (0..300)
+        .map(|i| PixelCoord::new((i * 7) % w, (i * 13) % h))
+        .collect();
     let bm = metric::block_map(&m, &sa, &sb, &seeds, &MetricParams::default());
     let held: usize = bm.leaves.iter().map(|l| l.samples as usize).sum();
-    assert_eq!(held, bm.pixels_evaluated, "children inherit, nothing is evaluated twice");
+    assert_eq!(
+        held, bm.pixels_evaluated,
+        "children inherit, nothing is evaluated twice"
+    );
     for l in &bm.leaves {
         if u64::from(l.samples) < u64::from(l.width * l.height) {
             assert_eq!(*bm.map.get(l.x, l.y), l.mean);
@@ -149,7 +206,14 @@ fn leaves_hold_every_sample_once_and_paint_their_mean() {
     }
     // 1×1: the single cell is fully sampled and keeps its exact (here 0: no band) value.
     let m1 = model(1, 1);
-    let (s1, s2) = stacks(&m1, &textured(1, 1), &noisy(&textured(1, 1), 0.4, 1, |_, _| true));
+    let (s1, s2) = stacks(
+        &m1,
+        &textured(1, 1),
+        &noisy(&textured(1, 1), 0.4, 1, |_, _| true),
+    );
     let bm = metric::block_map(&m1, &s1, &s2, &[], &MetricParams::default());
-    assert_eq!((bm.leaves.len(), bm.pixels_evaluated, *bm.map.get(0, 0)), (1, 1, 0.0));
+    assert_eq!(
+        (bm.leaves.len(), bm.pixels_evaluated, *bm.map.get(0, 0)),
+        (1, 1, 0.0)
+    );
 }

@@ -117,7 +117,9 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
     Ok(results)
 }
 
-/// Loads a scene; in quick mode shrinks it to at most 128 pixels on its long side and 8 spp.
+/// Loads a scene; in quick mode shrinks it to at most 128 pixels on its long side. The
+/// samples per pixel stay the scene's: fewer would make the reference itself noisy, and a
+/// noisy reference is a different study (every method is then judged mostly on noise).
 fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
     let json = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -133,7 +135,6 @@ fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
             scene.width = ((scene.width as f32 * s).round() as u32).max(1);
             scene.height = ((scene.height as f32 * s).round() as u32).max(1);
         }
-        scene.render.samples_per_pixel = scene.render.samples_per_pixel.min(8);
     }
     Ok(scene)
 }

@@ -53,7 +53,8 @@ pub struct CompareStats {
 
 fn load(path: &Path) -> anyhow::Result<LinearImage> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    decode_image(&bytes).with_context(|| format!("{} is not a readable PNG or EXR image", path.display()))
+    decode_image(&bytes)
+        .with_context(|| format!("{} is not a readable PNG or EXR image", path.display()))
 }
 
 /// Mean, max and 95th percentile of a distance map (nearest-rank percentile).
@@ -77,7 +78,10 @@ pub fn compare_images(
 ) -> anyhow::Result<(CompareStats, DistanceMap)> {
     let start = Instant::now();
     if !(args.display_peak.is_finite() && args.display_peak > 0.0) {
-        bail!("--display-peak must be a positive number of cd/m², got {}", args.display_peak);
+        bail!(
+            "--display-peak must be a positive number of cd/m², got {}",
+            args.display_peak
+        );
     }
     if !(args.ppd.is_finite() && args.ppd > 0.0) {
         bail!("--ppd must be a positive number, got {}", args.ppd);
@@ -102,8 +106,12 @@ pub fn compare_images(
         pixels_per_degree: args.ppd,
     };
     let model = VisionModel::new(display, a.width(), a.height());
-    let sa = model.decompose(a).with_context(|| format!("cannot compare {}", args.a.display()))?;
-    let sb = model.decompose(b).with_context(|| format!("cannot compare {}", args.b.display()))?;
+    let sa = model
+        .decompose(a)
+        .with_context(|| format!("cannot compare {}", args.a.display()))?;
+    let sb = model
+        .decompose(b)
+        .with_context(|| format!("cannot compare {}", args.b.display()))?;
     let dm = if args.full {
         metric::full_map(&model, &sa, &sb)
     } else {
@@ -131,7 +139,8 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(&stats)?;
     println!("{json}");
     if let Some(p) = &a.stats {
-        std::fs::write(p, format!("{json}\n")).with_context(|| format!("cannot write {}", p.display()))?;
+        std::fs::write(p, format!("{json}\n"))
+            .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(p) = &a.map {
         let png = colormap::distance_png_with_legend(&dm.map)?;

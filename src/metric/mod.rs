@@ -26,7 +26,11 @@ pub struct MetricParams {
 impl Default for MetricParams {
     /// H = 0.8, ε = 1 JND [F04].
     fn default() -> Self {
-        Self { homogeneity: 0.8, epsilon: 1.0, seed: 0 }
+        Self {
+            homogeneity: 0.8,
+            epsilon: 1.0,
+            seed: 0,
+        }
     }
 }
 
@@ -131,13 +135,25 @@ pub fn block_map(
     let (w, h) = (a.width().min(b.width()), a.height().min(b.height()));
     let mut map = Image::filled(w, h, 0f32);
     if w == 0 || h == 0 {
-        return DistanceMap { map, leaves: Vec::new(), pixels_evaluated: 0 };
+        return DistanceMap {
+            map,
+            leaves: Vec::new(),
+            pixels_evaluated: 0,
+        };
     }
-    let hom = if params.homogeneity.is_finite() { params.homogeneity } else { 0.8 };
-    let eps = if params.epsilon.is_finite() { f64::from(params.epsilon.max(0.0)) } else { 1.0 };
+    let hom = if params.homogeneity.is_finite() {
+        params.homogeneity
+    } else {
+        0.8
+    };
+    let eps = if params.epsilon.is_finite() {
+        f64::from(params.epsilon.max(0.0))
+    } else {
+        1.0
+    };
     let max_depth = u32::BITS - (w.max(h) - 1).leading_zeros(); // ceil(log2 max(W, H))
-    // `taken` marks evaluated (or about to be) pixels; cells are disjoint, so one mask
-    // serves every cell.
+                                                                // `taken` marks evaluated (or about to be) pixels; cells are disjoint, so one mask
+                                                                // serves every cell.
     let mut taken = vec![false; w as usize * h as usize];
     let idx = |p: PixelCoord| p.y as usize * w as usize + p.x as usize;
     // Seeds: in bounds, first occurrence only.
@@ -150,11 +166,22 @@ pub fn block_map(
         }
     }
     drop(seen);
-    let mut frontier = vec![Cell { x: 0, y: 0, w, h, depth: 0, samples: Vec::new(), seeds: root_seeds }];
+    let mut frontier = vec![Cell {
+        x: 0,
+        y: 0,
+        w,
+        h,
+        depth: 0,
+        samples: Vec::new(),
+        seeds: root_seeds,
+    }];
     let mut leaves = Vec::new();
     let mut evaluated = 0usize;
     let mut batch: Vec<PixelCoord> = Vec::new();
     let mut values: Vec<f32> = Vec::new();
+    let mut order: Vec<u32> = Vec::new();
+    let mut sorted: Vec<PixelCoord> = Vec::new();
+    let mut sorted_values: Vec<f32> = Vec::new();
     while !frontier.is_empty() {
         // 1. Choose each cell's new samples.
         batch.clear();
@@ -166,7 +193,9 @@ pub fn block_map(
             let mut rng = cell.rng(params.seed);
             // Seeds first (F&P04 initialise the metric with the rendering sample set); a
             // random subset of them when there are more than needed.
-            let seeds = std::mem::take(&mut cell.seeds);
+            // (Already-evaluated pixels cannot be here by construction; filter anyway.)
+            let mut seeds = std::mem::take(&mut cell.seeds);
+            seeds.retain(|&p| !taken[idx(p)]);
             let mut unused = Vec::new();
             if seeds.len() <= need {
                 batch.extend_from_slice(&seeds);
@@ -184,7 +213,8 @@ pub fn block_map(
                 taken[idx(p)] = true;
             }
             need -= batch.len() - start;
-            let free = cell.area() as usize - cell.samples.len() - (batch.len() - start);
+            let free =
+                (cell.area() as usize).saturating_sub(cell.samples.len() + (batch.len() - start));
             let need = need.min(free);
             if need > 0 {
                 if need * 2 <= free {
@@ -218,23 +248,48 @@ pub fn block_map(
             ranges.push(start..batch.len());
         }
         // 2. Evaluate the whole level's new pixels at once (parallel inside).
+        // Random positions hit the level planes all over memory; evaluating in raster order
+        // keeps the lookups cache-friendly. Values are scattered back to batch order.
+        order.clear();
+        order.extend(0..batch.len() as u32);
+        order.sort_unstable_by_key(|&i| {
+            let p = batch[i as usize];
+            (p.y, p.x)
+        });
+        sorted.clear();
+        sorted.extend(order.iter().map(|&i| batch[i as usize]));
+        sorted_values.clear();
+        sorted_values.resize(batch.len(), 0.0);
+        model.distances_at(a, b, &sorted, &mut sorted_values);
         values.clear();
         values.resize(batch.len(), 0.0);
-        model.distances_at(a, b, &batch, &mut values);
+        for (&i, &v) in order.iter().zip(&sorted_values) {
+            values[i as usize] = v;
+        }
         evaluated += batch.len();
         // 3. Decide per cell.
         let mut next = Vec::new();
         for (mut cell, r) in frontier.drain(..).zip(ranges) {
-            cell.samples.extend(batch[r.clone()].iter().copied().zip(values[r].iter().copied()));
+            cell.samples.extend(
+                batch[r.clone()]
+                    .iter()
+                    .copied()
+                    .zip(values[r].iter().copied()),
+            );
             let n = cell.samples.len().max(1);
             let mean = cell.samples.iter().map(|s| f64::from(s.1)).sum::<f64>() / n as f64;
-            let close = cell.samples.iter().filter(|s| (f64::from(s.1) - mean).abs() <= eps).count();
+            let close = cell
+                .samples
+                .iter()
+                .filter(|s| (f64::from(s.1) - mean).abs() <= eps)
+                .count();
             let homog = close as f64 / n as f64;
             let full = cell.samples.len() as u64 >= cell.area();
             let small = cell.w < MIN_SPLIT && cell.h < MIN_SPLIT;
             if homog >= f64::from(hom) || full || small || cell.depth >= max_depth {
                 for y in cell.y..cell.y + cell.h {
-                    let row = &mut map.pixels_mut()[y as usize * w as usize..][cell.x as usize..(cell.x + cell.w) as usize];
+                    let row = &mut map.pixels_mut()[y as usize * w as usize..]
+                        [cell.x as usize..(cell.x + cell.w) as usize];
                     row.fill(mean as f32);
                 }
                 if full {
@@ -258,27 +313,55 @@ pub fn block_map(
         }
         frontier = next;
     }
-    DistanceMap { map, leaves, pixels_evaluated: evaluated }
+    DistanceMap {
+        map,
+        leaves,
+        pixels_evaluated: evaluated,
+    }
 }
 
 /// Splits each dimension ≥ 8 px into floor/ceil halves (2 or 4 children); children inherit
 /// the parent's samples and unused seeds that fall inside them.
 fn split(cell: Cell, out: &mut Vec<Cell>) {
     let xs: Vec<(u32, u32)> = if cell.w >= MIN_SPLIT {
-        vec![(cell.x, cell.w / 2), (cell.x + cell.w / 2, cell.w - cell.w / 2)]
+        vec![
+            (cell.x, cell.w / 2),
+            (cell.x + cell.w / 2, cell.w - cell.w / 2),
+        ]
     } else {
         vec![(cell.x, cell.w)]
     };
     let ys: Vec<(u32, u32)> = if cell.h >= MIN_SPLIT {
-        vec![(cell.y, cell.h / 2), (cell.y + cell.h / 2, cell.h - cell.h / 2)]
+        vec![
+            (cell.y, cell.h / 2),
+            (cell.y + cell.h / 2, cell.h - cell.h / 2),
+        ]
     } else {
         vec![(cell.y, cell.h)]
     };
     for &(y, ch) in &ys {
         for &(x, cw) in &xs {
-            let mut c = Cell { x, y, w: cw, h: ch, depth: cell.depth + 1, samples: Vec::new(), seeds: Vec::new() };
-            c.samples = cell.samples.iter().copied().filter(|s| c.contains(s.0)).collect();
-            c.seeds = cell.seeds.iter().copied().filter(|&p| c.contains(p)).collect();
+            let mut c = Cell {
+                x,
+                y,
+                w: cw,
+                h: ch,
+                depth: cell.depth + 1,
+                samples: Vec::new(),
+                seeds: Vec::new(),
+            };
+            c.samples = cell
+                .samples
+                .iter()
+                .copied()
+                .filter(|s| c.contains(s.0))
+                .collect();
+            c.seeds = cell
+                .seeds
+                .iter()
+                .copied()
+                .filter(|&p| c.contains(p))
+                .collect();
             out.push(c);
         }
     }
@@ -289,7 +372,11 @@ fn split(cell: Cell, out: &mut Vec<Cell>) {
 pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> DistanceMap {
     let map = model.full_map(a, b);
     let pixels_evaluated = map.len();
-    DistanceMap { map, leaves: Vec::new(), pixels_evaluated }
+    DistanceMap {
+        map,
+        leaves: Vec::new(),
+        pixels_evaluated,
+    }
 }
 
 #[cfg(test)]

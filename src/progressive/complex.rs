@@ -197,6 +197,12 @@ impl Boundary {
     }
 }
 
+/// How many times the mean contour jump the largest jump must be to count as a rupture.
+/// A clean edge crossing a contour of n pixels gives two jumps of J and a mean of ≈ 2J/n,
+/// a ratio of n/2 (≥ 7 for the ≥ 15-pixel contours of interpolated triangles); the largest
+/// of n noise jumps is typically only ≈ 3 × their mean.
+pub const RUPTURE_CONTRAST: f32 = 4.0;
+
 /// The rupture direction of F&P04 §4.2: walking the contour counter-clockwise, the two
 /// pixels with the largest colour jump to their predecessor (at least 2 steps apart, spec
 /// §4.4 guard); the segment joining them is the least-discrepancy direction. `None` when
@@ -218,6 +224,13 @@ pub fn rupture_direction(contour: &[ContourPixel], colours: &[Rgb]) -> Option<(f
         }
     }
     if best.is_nan() || best <= 0.0 {
+        return None;
+    }
+    // [D] A rupture must stand out from the contour's ordinary variation: on a Monte
+    // Carlo contour the largest jump is often just noise, and a direction picked from
+    // noise draws streaks. Below RUPTURE_CONTRAST × the mean jump, keep Gouraud.
+    let mean = (0..n).map(jump).sum::<f32>() / n as f32;
+    if best < RUPTURE_CONTRAST * mean {
         return None;
     }
     let mut i2 = None;
@@ -314,6 +327,11 @@ mod tests {
         contour(&t, 9, &mut st, &mut c);
         let cols = vec![Rgb::splat(0.5); c.len()];
         assert_eq!(rupture_direction(&c, &cols), None);
+        // Uniform small noise (every jump the same size): no jump stands out.
+        let noisy: Vec<Rgb> = (0..c.len())
+            .map(|i| Rgb::splat(0.5 + 0.05 * (i % 2) as f32))
+            .collect();
+        assert_eq!(rupture_direction(&c, &noisy), None);
         let lin = |p: PixelCoord| Rgb::splat(p.x as f32 + 2.0 * p.y as f32);
         let b = Boundary::new(&t, &c, lin);
         let v = b.directional((2.0, 3.0), (1.0, 0.0)).expect("inside");

@@ -539,11 +539,8 @@ pub fn run<O: PixelOracle>(
         let new = r.trace(&work, next_iter, cancel)?;
         let t = Instant::now();
         tri.insert(&new);
-        eprintln!("PROF insert-done {:?}", t.elapsed());
         let new_tris = tri.triangles();
-        eprintln!("PROF tris-done {:?}", t.elapsed());
         let new_raster = rasterise(&new_tris, w, h);
-        eprintln!("PROF raster-done {:?}", t.elapsed());
         let mut next = Image::filled(w, h, Rgb::ZERO);
         gouraud(
             &new_tris,
@@ -553,7 +550,6 @@ pub fn run<O: PixelOracle>(
             &tri,
             next.pixels_mut(),
         );
-        eprintln!("PROF gouraud-done {:?}", t.elapsed());
         // Complex triangles of this iteration: directional fill from their traced contour.
         for &t in &complex {
             fill_complex(
@@ -567,7 +563,6 @@ pub fn run<O: PixelOracle>(
                 next.pixels_mut(),
             );
         }
-        eprintln!("PROF total {:?} ntris {} ncomplex {}", t.elapsed(), new_tris.len(), complex.len());
         r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
         tris = new_tris;
         raster = new_raster;

@@ -92,6 +92,9 @@ pub fn least_discrepancy_direction(
             best = Some((disc, d));
         }
     }
+    // The failure-mode test of spec §4.4 (junctions: residual too high) is not applied
+    // ([D], not done): the traced contour pixels become vertices, so a badly fitted
+    // triangle is subdivided and re-judged next iteration anyway.
     best.map(|b| b.1)
 }
 

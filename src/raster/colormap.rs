@@ -31,7 +31,11 @@ const STOPS: [[f32; 3]; 9] = [
 /// Position of `d` JND on the scale, in [0, 1]. NaN and negatives map to 0.
 #[must_use]
 pub fn scale_position(d: f32) -> f32 {
-    let d = if d.is_nan() { 0.0 } else { d.clamp(0.0, TOP_JND) };
+    let d = if d.is_nan() {
+        0.0
+    } else {
+        d.clamp(0.0, TOP_JND)
+    };
     (1.0 + 2.0 * d).log2() / (1.0 + 2.0 * TOP_JND).log2()
 }
 
@@ -96,7 +100,8 @@ fn draw_text(img: &mut Image<[u8; 3]>, s: &str, x0: i64, y0: i64, scale: u32, co
                     for dx in 0..scale {
                         let x = x0 + i64::from((ci as u32 * 4 + col) * scale + dx);
                         let y = y0 + i64::from(row as u32 * scale + dy);
-                        if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
+                        if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height()
+                        {
                             img.set(x as u32, y as u32, colour);
                         }
                     }
@@ -137,7 +142,9 @@ pub fn distance_with_legend(map: &Image<f32>) -> Image<[u8; 3]> {
     let unit = "JND";
     let margin = 4 + scale * 4; // room for half a label at the left end
     let x0 = margin;
-    let x1 = w.saturating_sub(text_width(unit, scale) + 2 * margin).max(x0 + 2);
+    let x1 = w
+        .saturating_sub(text_width(unit, scale) + 2 * margin)
+        .max(x0 + 2);
     let bar_y = map.height() + 4;
     for x in x0..x1 {
         let c = ramp((x - x0) as f32 / (x1 - x0 - 1).max(1) as f32);
@@ -160,7 +167,14 @@ pub fn distance_with_legend(map: &Image<f32>) -> Image<[u8; 3]> {
         let lx = i64::from(tx) - i64::from(text_width(&label, scale) / 2);
         draw_text(&mut img, &label, lx, i64::from(label_y), scale, FG);
     }
-    draw_text(&mut img, unit, i64::from(x1 + margin), i64::from(bar_y), scale, FG);
+    draw_text(
+        &mut img,
+        unit,
+        i64::from(x1 + margin),
+        i64::from(bar_y),
+        scale,
+        FG,
+    );
     img
 }
 
@@ -210,7 +224,10 @@ mod tests {
         assert_eq!(*img.get(0, 0), distance_colour(0.0));
         assert_eq!(*img.get(299, 0), distance_colour(299.0 / 30.0));
         // Some label pixels are drawn in the legend area.
-        let fg = (20..img.height()).flat_map(|y| (0..300).map(move |x| (x, y))).filter(|&(x, y)| *img.get(x, y) == [230, 230, 230]).count();
+        let fg = (20..img.height())
+            .flat_map(|y| (0..300).map(move |x| (x, y)))
+            .filter(|&(x, y)| *img.get(x, y) == [230, 230, 230])
+            .count();
         assert!(fg > 50);
         let tiny = distance_with_legend(&Image::filled(1, 1, 0.5));
         assert_eq!(tiny.width(), 120);

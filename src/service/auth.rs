@@ -38,7 +38,8 @@ pub async fn require_token(State(st): State<AppState>, req: Request, next: Next)
         "this server needs a token: send `Authorization: Bearer <token>`",
     )
     .into_response();
-    res.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+    res.headers_mut()
+        .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
     res
 }
 

@@ -15,7 +15,9 @@ pub async fn list(State(_st): State<AppState>) -> Result<impl IntoResponse, ApiE
         .filter_map(|(name, text)| {
             // A bundled file that does not parse would be a build mistake: skip it rather
             // than fail the whole list (a unit test keeps them all valid JSON).
-            serde_json::from_str::<Value>(text).ok().map(|scene| json!({ "name": name, "scene": scene }))
+            serde_json::from_str::<Value>(text)
+                .ok()
+                .map(|scene| json!({ "name": name, "scene": scene }))
         })
         .collect();
     Ok(axum::Json(json!({ "examples": examples })))
@@ -28,7 +30,8 @@ mod tests {
         let mut names = std::collections::HashSet::new();
         for (name, text) in super::EXAMPLES {
             assert!(names.insert(*name), "duplicate example {name}");
-            serde_json::from_str::<serde_json::Value>(text).unwrap_or_else(|e| panic!("{name}: {e}"));
+            serde_json::from_str::<serde_json::Value>(text)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
         }
     }
 
@@ -36,9 +39,16 @@ mod tests {
     #[test]
     fn bundled_examples_are_valid_requests_within_server_limits() {
         use crate::scene::{parse_scene, SceneOrigin};
-        assert!(super::EXAMPLES.iter().any(|(n, _)| *n == "cornell-box"), "scenes/cornell-box.json is bundled");
+        assert!(
+            super::EXAMPLES.iter().any(|(n, _)| *n == "cornell-box"),
+            "scenes/cornell-box.json is bundled"
+        );
         for (name, text) in super::EXAMPLES {
-            if let Err(e) = parse_scene(text, &SceneOrigin::Request, &crate::service::server_limits()) {
+            if let Err(e) = parse_scene(
+                text,
+                &SceneOrigin::Request,
+                &crate::service::server_limits(),
+            ) {
                 panic!("example {name} is refused: {e}");
             }
         }

@@ -38,6 +38,7 @@ pub struct AppState {
     /// Fires on shutdown: open streams close.
     pub stop: CancellationToken,
     pub max_body_bytes: usize,
+    pub max_watchers: usize,
 }
 
 // ---------------------------------------------------------------------------------------
@@ -92,7 +93,13 @@ pub struct ApiError {
 
 impl ApiError {
     pub fn new(code: ErrorCode, message: impl Into<String>) -> Self {
-        Self { code, message: message.into(), path: String::new(), problems: Vec::new(), retry_after_s: None }
+        Self {
+            code,
+            message: message.into(),
+            path: String::new(),
+            problems: Vec::new(),
+            retry_after_s: None,
+        }
     }
 
     #[must_use]
@@ -107,7 +114,10 @@ impl ApiError {
 
     pub fn internal(context: &str, e: &dyn std::fmt::Display) -> Self {
         tracing::error!("{context}: {e}");
-        Self::new(ErrorCode::Internal, format!("internal error while {context}; see the server log"))
+        Self::new(
+            ErrorCode::Internal,
+            format!("internal error while {context}; see the server log"),
+        )
     }
 
     /// The JSON body, also used for stream `error` messages.
@@ -131,7 +141,8 @@ impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let mut res = (self.code.status(), axum::Json(self.body())).into_response();
         if let Some(s) = self.retry_after_s {
-            res.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(s));
+            res.headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from(s));
         }
         res
     }
@@ -155,22 +166,35 @@ pub async fn json_errors(State(st): State<AppState>, res: Response) -> Response 
     }
     let (code, message) = match status {
         StatusCode::NOT_FOUND => (ErrorCode::NotFound, "no such route".to_owned()),
-        StatusCode::METHOD_NOT_ALLOWED => {
-            (ErrorCode::MethodNotAllowed, "this method is not allowed on this route".to_owned())
-        }
+        StatusCode::METHOD_NOT_ALLOWED => (
+            ErrorCode::MethodNotAllowed,
+            "this method is not allowed on this route".to_owned(),
+        ),
         StatusCode::PAYLOAD_TOO_LARGE => (
             ErrorCode::TooLarge,
-            format!("the request body is larger than the limit of {} bytes", st.max_body_bytes),
+            format!(
+                "the request body is larger than the limit of {} bytes",
+                st.max_body_bytes
+            ),
         ),
-        s if s.is_server_error() => (ErrorCode::Internal, "internal error; see the server log".to_owned()),
+        s if s.is_server_error() => (
+            ErrorCode::Internal,
+            "internal error; see the server log".to_owned(),
+        ),
         s => (
             ErrorCode::InvalidParameter,
-            format!("bad request ({})", s.canonical_reason().unwrap_or("client error")),
+            format!(
+                "bad request ({})",
+                s.canonical_reason().unwrap_or("client error")
+            ),
         ),
     };
     let (mut parts, _) = res.into_parts();
     parts.headers.remove(header::CONTENT_LENGTH);
-    parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    parts.headers.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/json"),
+    );
     let body = ApiError::new(code, message).body().to_string();
     Response::from_parts(parts, axum::body::Body::from(body))
 }
@@ -190,8 +214,11 @@ impl<T: DeserializeOwned, S: Send + Sync> FromRequest<S> for Json<T> {
         let de = &mut serde_json::Deserializer::from_slice(&bytes);
         let v = serde_path_to_error::deserialize(de).map_err(|e| {
             let path = e.path().to_string();
-            ApiError::new(ErrorCode::InvalidJson, format!("unreadable JSON: {}", e.inner()))
-                .at(if path == "." { String::new() } else { path })
+            ApiError::new(
+                ErrorCode::InvalidJson,
+                format!("unreadable JSON: {}", e.inner()),
+            )
+            .at(if path == "." { String::new() } else { path })
         })?;
         Ok(Json(v))
     }
@@ -206,9 +233,15 @@ impl<T: Serialize> IntoResponse for Json<T> {
 async fn read_body<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, ApiError> {
     Bytes::from_request(req, state).await.map_err(|r| {
         if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            ApiError::new(ErrorCode::TooLarge, "the request body is larger than the server's limit")
+            ApiError::new(
+                ErrorCode::TooLarge,
+                "the request body is larger than the server's limit",
+            )
         } else {
-            ApiError::new(ErrorCode::InvalidJson, format!("could not read the request body: {}", r.body_text()))
+            ApiError::new(
+                ErrorCode::InvalidJson,
+                format!("could not read the request body: {}", r.body_text()),
+            )
         }
     })
 }
@@ -223,15 +256,25 @@ impl FromRequest<AppState> for SceneBody {
     async fn from_request(req: Request, state: &AppState) -> Result<Self, Self::Rejection> {
         let bytes = read_body(req, state).await.map_err(|mut e| {
             if e.code == ErrorCode::TooLarge {
-                e.message = format!("the request body is larger than the limit of {} bytes", state.max_body_bytes);
+                e.message = format!(
+                    "the request body is larger than the limit of {} bytes",
+                    state.max_body_bytes
+                );
             }
             e
         })?;
         if bytes.iter().all(u8::is_ascii_whitespace) {
-            return Err(ApiError::new(ErrorCode::InvalidJson, "the request body is empty; send a scene document"));
+            return Err(ApiError::new(
+                ErrorCode::InvalidJson,
+                "the request body is empty; send a scene document",
+            ));
         }
-        let text = String::from_utf8(bytes.to_vec())
-            .map_err(|e| ApiError::new(ErrorCode::InvalidJson, format!("the body is not UTF-8: {e}")))?;
+        let text = String::from_utf8(bytes.to_vec()).map_err(|e| {
+            ApiError::new(
+                ErrorCode::InvalidJson,
+                format!("the body is not UTF-8: {e}"),
+            )
+        })?;
         Ok(SceneBody(text))
     }
 }
@@ -243,11 +286,17 @@ pub struct JobId(pub Uuid);
 impl<S: Send + Sync> FromRequestParts<S> for JobId {
     type Rejection = ApiError;
 
-    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
-        let axum::extract::Path(raw) = axum::extract::Path::<String>::from_request_parts(parts, state)
-            .await
-            .map_err(|_| ApiError::new(ErrorCode::NotFound, "no such job"))?;
-        Uuid::parse_str(&raw).map(JobId).map_err(|_| ApiError::not_found_job(&raw))
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, ApiError> {
+        let axum::extract::Path(raw) =
+            axum::extract::Path::<String>::from_request_parts(parts, state)
+                .await
+                .map_err(|_| ApiError::new(ErrorCode::NotFound, "no such job"))?;
+        Uuid::parse_str(&raw)
+            .map(JobId)
+            .map_err(|_| ApiError::not_found_job(&raw))
     }
 }
 
@@ -257,11 +306,19 @@ pub struct Params(pub HashMap<String, String>);
 impl<S: Send + Sync> FromRequestParts<S> for Params {
     type Rejection = ApiError;
 
-    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
+    async fn from_request_parts(
+        parts: &mut axum::http::request::Parts,
+        state: &S,
+    ) -> Result<Self, ApiError> {
         axum::extract::Query::<HashMap<String, String>>::from_request_parts(parts, state)
             .await
             .map(|q| Params(q.0))
-            .map_err(|e| ApiError::new(ErrorCode::InvalidParameter, format!("unreadable query string: {e}")))
+            .map_err(|e| {
+                ApiError::new(
+                    ErrorCode::InvalidParameter,
+                    format!("unreadable query string: {e}"),
+                )
+            })
     }
 }
 
@@ -277,7 +334,10 @@ pub fn router(state: AppState) -> Router {
         .route("/jobs/{id}/frame", get(get_frame))
         .route("/jobs/{id}/stream", get(ws::stream))
         .route("/examples", get(examples::list))
-        .route_layer(axum::middleware::from_fn_with_state(state.clone(), auth::require_token));
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_token,
+        ));
     let max_body = state.max_body_bytes;
     Router::new()
         .route("/", get(viewer))
@@ -290,7 +350,10 @@ pub fn router(state: AppState) -> Router {
         // outermost so even layer-made responses leave as JSON.
         .layer(axum::extract::DefaultBodyLimit::max(max_body))
         .layer(tower_http::limit::RequestBodyLimitLayer::new(max_body))
-        .layer(axum::middleware::map_response_with_state(state.clone(), json_errors))
+        .layer(axum::middleware::map_response_with_state(
+            state.clone(),
+            json_errors,
+        ))
         .with_state(state)
 }
 
@@ -300,7 +363,10 @@ async fn not_found() -> ApiError {
 
 async fn viewer() -> impl IntoResponse {
     (
-        [(header::CONTENT_TYPE, "text/html; charset=utf-8"), (header::CACHE_CONTROL, "no-cache")],
+        [
+            (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+            (header::CACHE_CONTROL, "no-cache"),
+        ],
         super::viewer::INDEX_HTML,
     )
 }
@@ -311,13 +377,22 @@ async fn healthz() -> impl IntoResponse {
 
 async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
     let text = super::metrics::render(&st.metrics, &st.jobs).await;
-    ([(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")], text)
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        text,
+    )
 }
 
 // ---------------------------------------------------------------------------------------
 // Handlers
 
-async fn create_job(State(st): State<AppState>, SceneBody(text): SceneBody) -> Result<Response, ApiError> {
+async fn create_job(
+    State(st): State<AppState>,
+    SceneBody(text): SceneBody,
+) -> Result<Response, ApiError> {
     // Validation can be heavy (8 MiB of mesh): off the async runtime. A panic inside the
     // parser becomes a 500, never a dead server.
     let limits = *st.jobs.limits();
@@ -334,12 +409,19 @@ async fn create_job(State(st): State<AppState>, SceneBody(text): SceneBody) -> R
             SceneErrorKind::TooLarge => ErrorCode::TooLarge,
         };
         let first = e.problems.first();
-        let mut err = ApiError::new(code, first.map_or_else(|| "invalid scene".to_owned(), |p| p.message.clone()))
-            .at(first.map(|p| p.path.clone()).unwrap_or_default());
+        let mut err = ApiError::new(
+            code,
+            first.map_or_else(|| "invalid scene".to_owned(), |p| p.message.clone()),
+        )
+        .at(first.map(|p| p.path.clone()).unwrap_or_default());
         err.problems = e.problems;
         err
     })?;
-    let name = if scene.name.trim().is_empty() { "untitled".to_owned() } else { scene.name.clone() };
+    let name = if scene.name.trim().is_empty() {
+        "untitled".to_owned()
+    } else {
+        scene.name.clone()
+    };
     let job = st.jobs.submit(&name, &text).await.map_err(|e| match e {
         SubmitError::QueueFull(n) => {
             let mut err = ApiError::new(
@@ -350,7 +432,10 @@ async fn create_job(State(st): State<AppState>, SceneBody(text): SceneBody) -> R
             err
         }
         SubmitError::ShuttingDown => {
-            let mut err = ApiError::new(ErrorCode::Unavailable, "the server is shutting down; retry later");
+            let mut err = ApiError::new(
+                ErrorCode::Unavailable,
+                "the server is shutting down; retry later",
+            );
             err.retry_after_s = Some(5);
             err
         }
@@ -377,7 +462,10 @@ struct JobList {
     jobs: Vec<JobRecord>,
 }
 
-async fn list_jobs(State(st): State<AppState>, Params(q): Params) -> Result<Json<JobList>, ApiError> {
+async fn list_jobs(
+    State(st): State<AppState>,
+    Params(q): Params,
+) -> Result<Json<JobList>, ApiError> {
     let state = match q.get("state") {
         None => None,
         Some(s) => Some(JobState::parse(s).ok_or_else(|| {
@@ -401,11 +489,20 @@ async fn list_jobs(State(st): State<AppState>, Params(q): Params) -> Result<Json
             }
         },
     };
-    Ok(Json(JobList { jobs: st.jobs.list(state, limit).await? }))
+    Ok(Json(JobList {
+        jobs: st.jobs.list(state, limit).await?,
+    }))
 }
 
-async fn get_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Json<JobRecord>, ApiError> {
-    st.jobs.get(id).await?.map(Json).ok_or_else(|| ApiError::not_found_job(&id.to_string()))
+async fn get_job(
+    State(st): State<AppState>,
+    JobId(id): JobId,
+) -> Result<Json<JobRecord>, ApiError> {
+    st.jobs
+        .get(id)
+        .await?
+        .map(Json)
+        .ok_or_else(|| ApiError::not_found_job(&id.to_string()))
 }
 
 async fn cancel_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
@@ -413,7 +510,10 @@ async fn cancel_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Resp
         CancelOutcome::NotFound => Err(ApiError::not_found_job(&id.to_string())),
         CancelOutcome::AlreadyFinished(j) => Err(ApiError::new(
             ErrorCode::Conflict,
-            format!("job {id} is already {}; nothing to cancel", j.state.as_str()),
+            format!(
+                "job {id} is already {}; nothing to cancel",
+                j.state.as_str()
+            ),
         )),
         CancelOutcome::Accepted(j) => Ok((StatusCode::ACCEPTED, Json(j)).into_response()),
     }
@@ -447,8 +547,11 @@ async fn get_frame(
         None | Some("png") => false,
         Some("exr") => true,
         Some(f) => {
-            return Err(ApiError::new(ErrorCode::InvalidParameter, format!("unknown format {f:?}; use png or exr"))
-                .at("format"))
+            return Err(ApiError::new(
+                ErrorCode::InvalidParameter,
+                format!("unknown format {f:?}; use png or exr"),
+            )
+            .at("format"))
         }
     };
     if exr && layer != "image" {
@@ -459,16 +562,27 @@ async fn get_frame(
         .at("format"));
     }
     let no_frame = || ApiError::new(ErrorCode::NotFound, format!("job {id} has no frame yet"));
-    let missing_layer = || ApiError::new(ErrorCode::NotFound, format!("this frame has no {layer} layer")).at("layer");
+    let missing_layer = || {
+        ApiError::new(
+            ErrorCode::NotFound,
+            format!("this frame has no {layer} layer"),
+        )
+        .at("layer")
+    };
     let bytes: Vec<u8> = if let Some(live) = st.jobs.live(id) {
         let lf = live.snapshot().frame.clone().ok_or_else(no_frame)?;
         if !exr && layer == "image" {
-            lf.image_png().await.map_err(|e| ApiError::internal("encoding a frame", &e))?.to_vec()
+            lf.image_png()
+                .await
+                .map_err(|e| ApiError::internal("encoding a frame", &e))?
+                .to_vec()
         } else {
             let layer = layer.to_owned();
             tokio::task::spawn_blocking(move || {
                 if exr {
-                    crate::raster::encode_exr(&lf.frame.image).map(Some).map_err(|e| e.to_string())
+                    crate::raster::encode_exr(&lf.frame.image)
+                        .map(Some)
+                        .map_err(|e| e.to_string())
                 } else {
                     lf.encode_layer_blocking(&layer)
                 }
@@ -479,11 +593,20 @@ async fn get_frame(
             .ok_or_else(missing_layer)?
         }
     } else {
-        let job = st.jobs.store().get(id).await?.ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
+        let job = st
+            .jobs
+            .store()
+            .get(id)
+            .await?
+            .ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
         if !job.has_frame {
             return Err(no_frame());
         }
-        let path = st.jobs.store().layer_path(id, layer, exr).ok_or_else(missing_layer)?;
+        let path = st
+            .jobs
+            .store()
+            .layer_path(id, layer, exr)
+            .ok_or_else(missing_layer)?;
         match tokio::fs::read(&path).await {
             Ok(b) => b,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer()),
@@ -491,7 +614,14 @@ async fn get_frame(
         }
     };
     let ctype = if exr { "image/x-exr" } else { "image/png" };
-    Ok(([(header::CONTENT_TYPE, ctype), (header::CACHE_CONTROL, "no-store")], bytes).into_response())
+    Ok((
+        [
+            (header::CONTENT_TYPE, ctype),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        bytes,
+    )
+        .into_response())
 }
 
 #[cfg(test)]
@@ -501,9 +631,15 @@ mod tests {
     #[test]
     fn error_body_has_code_message_path() {
         let e = ApiError::new(ErrorCode::QueueFull, "full").at("x");
-        assert_eq!(e.body(), json!({"error": {"code": "queue_full", "message": "full", "path": "x"}}));
+        assert_eq!(
+            e.body(),
+            json!({"error": {"code": "queue_full", "message": "full", "path": "x"}})
+        );
         assert_eq!(ErrorCode::QueueFull.status(), StatusCode::TOO_MANY_REQUESTS);
-        assert_eq!(ErrorCode::InvalidScene.status(), StatusCode::UNPROCESSABLE_ENTITY);
+        assert_eq!(
+            ErrorCode::InvalidScene.status(),
+            StatusCode::UNPROCESSABLE_ENTITY
+        );
     }
 
     #[test]
@@ -511,5 +647,31 @@ mod tests {
         assert_eq!(retry_after(0), 1);
         assert_eq!(retry_after(64), 8);
         assert_eq!(retry_after(usize::MAX), 60);
+    }
+
+    #[derive(Debug, serde::Deserialize)]
+    struct Body {
+        #[allow(dead_code)]
+        a: Vec<u32>,
+    }
+
+    async fn extract(body: &'static str) -> Result<Json<Body>, ApiError> {
+        let req = axum::http::Request::builder()
+            .method("POST")
+            .uri("/")
+            .body(axum::body::Body::from(body))
+            .unwrap();
+        Json::<Body>::from_request(req, &()).await
+    }
+
+    #[tokio::test]
+    async fn json_extractor_reports_invalid_json_with_the_path() {
+        assert!(extract(r#"{"a": [1, 2]}"#).await.is_ok());
+        let e = extract(r#"{"a": [1, -2]}"#).await.err().unwrap();
+        assert_eq!((e.code, e.path.as_str()), (ErrorCode::InvalidJson, "a[1]"));
+        let e = extract("{").await.err().unwrap();
+        assert_eq!(e.code, ErrorCode::InvalidJson);
+        let e = extract(r#"{"a": [NaN]}"#).await.err().unwrap();
+        assert_eq!(e.code, ErrorCode::InvalidJson);
     }
 }

@@ -54,7 +54,11 @@ struct QueueInner {
 impl Queue {
     fn new(capacity: usize) -> Self {
         Self {
-            inner: Mutex::new(QueueInner { items: VecDeque::new(), reserved: 0, closed: false }),
+            inner: Mutex::new(QueueInner {
+                items: VecDeque::new(),
+                reserved: 0,
+                closed: false,
+            }),
             ready: Condvar::new(),
             capacity,
         }
@@ -143,7 +147,13 @@ impl LiveFrame {
             .into_iter()
             .filter(|l| *l != "distance" || frame.distance.is_some())
             .collect();
-        Self { frame, exposure, progress, layers, png: tokio::sync::OnceCell::new() }
+        Self {
+            frame,
+            exposure,
+            progress,
+            layers,
+            png: tokio::sync::OnceCell::new(),
+        }
     }
 
     /// The PNG of the image layer, encoded once, off the async runtime.
@@ -187,8 +197,16 @@ pub struct LiveJob {
 
 impl LiveJob {
     fn new(job: JobRecord) -> Arc<Self> {
-        let (tx, _rx) = watch::channel(Arc::new(Snapshot { job: job.clone(), frame: None }));
-        Arc::new(Self { id: job.id, cancel: CancelToken::new(), user_cancelled: AtomicBool::new(false), tx })
+        let (tx, _rx) = watch::channel(Arc::new(Snapshot {
+            job: job.clone(),
+            frame: None,
+        }));
+        Arc::new(Self {
+            id: job.id,
+            cancel: CancelToken::new(),
+            user_cancelled: AtomicBool::new(false),
+            tx,
+        })
     }
 
     #[must_use]
@@ -226,7 +244,11 @@ impl EtaTracker {
     const WINDOW: usize = 6;
 
     fn new(t0: f64, max_iterations: u32) -> Self {
-        Self { t0, max_iterations, points: Vec::new() }
+        Self {
+            t0,
+            max_iterations,
+            points: Vec::new(),
+        }
     }
 
     /// Returns `(eta_ms, confidence)`.
@@ -259,7 +281,10 @@ impl EtaTracker {
             return (None, None);
         }
         let nf = n as f64;
-        let (sx, sy) = self.points.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+        let (sx, sy) = self
+            .points
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
         let (mx, my) = (sx / nf, sy / nf);
         let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
         for (x, y) in &self.points {
@@ -280,7 +305,11 @@ impl EtaTracker {
         let k_last = f64::from(self.max_iterations.saturating_sub(1));
         let k_star = ((self.t0.ln() - a) / b).min(k_last);
         let remaining = (k_star - k_now).max(1.0);
-        let r2 = if syy > 0.0 { (sxy * sxy / (sxx * syy)).clamp(0.0, 1.0) } else { 1.0 };
+        let r2 = if syy > 0.0 {
+            (sxy * sxy / (sxx * syy)).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
         (Some(remaining * per_iter_ms), Some(r2 * nf / (nf + 2.0)))
     }
 }
@@ -333,8 +362,11 @@ pub enum DeleteOutcome {
 
 /// How a worker renders a validated scene. The service always uses [`render_scene`];
 /// unit tests substitute renderers that panic or block, to test the job boundary.
-pub type RenderFn =
-    fn(&crate::scene::Scene, &mut dyn FnMut(&Frame), &CancelToken) -> Result<Frame, crate::cancel::Cancelled>;
+pub type RenderFn = fn(
+    &crate::scene::Scene,
+    &mut dyn FnMut(&Frame),
+    &CancelToken,
+) -> Result<Frame, crate::cancel::Cancelled>;
 
 /// The production renderer: the path tracer under the progressive loop.
 pub fn render_scene(
@@ -374,7 +406,15 @@ impl Jobs {
         queue_capacity: usize,
         metrics: Arc<Metrics>,
     ) -> Result<Self, StoreError> {
-        Self::start_with(store, limits, workers, queue_capacity, metrics, render_scene).await
+        Self::start_with(
+            store,
+            limits,
+            workers,
+            queue_capacity,
+            metrics,
+            render_scene,
+        )
+        .await
     }
 
     /// [`Self::start`] with another renderer (tests).
@@ -473,7 +513,11 @@ impl Jobs {
         self.inner.store.get(id).await
     }
 
-    pub async fn list(&self, state: Option<JobState>, limit: u32) -> Result<Vec<JobRecord>, StoreError> {
+    pub async fn list(
+        &self,
+        state: Option<JobState>,
+        limit: u32,
+    ) -> Result<Vec<JobRecord>, StoreError> {
         let mut jobs = self.inner.store.list(state, limit).await?;
         // Overlay live progress on running jobs (the store holds it only at the end).
         for j in &mut jobs {
@@ -613,6 +657,8 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     let mut latest: Option<Arc<LiveFrame>> = None;
     let mut exposure = 1.0f32;
     let mut last_pixels = 0u64;
+    // Render time is counted as it passes (per frame), so the counter moves during long jobs.
+    let mut counted_s = 0.0f64;
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         let scene = match parse_scene(&scene_json, &SceneOrigin::Request, &inner.limits) {
             Ok(s) => s,
@@ -622,15 +668,21 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             }
         };
         exposure = scene.display.exposure;
-        let mut eta = EtaTracker::new(f64::from(scene.progressive.t0), scene.progressive.max_iterations);
+        let mut eta = EtaTracker::new(
+            f64::from(scene.progressive.t0),
+            scene.progressive.max_iterations,
+        );
         let mut on_frame = |f: &Frame| {
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
             let progress = progress_json(f, elapsed, eta.update(f, elapsed));
-            inner
-                .metrics
-                .pixels_traced
-                .fetch_add(f.stats.pixels_traced.saturating_sub(last_pixels), Ordering::Relaxed);
+            inner.metrics.pixels_traced.fetch_add(
+                f.stats.pixels_traced.saturating_sub(last_pixels),
+                Ordering::Relaxed,
+            );
             last_pixels = last_pixels.max(f.stats.pixels_traced);
+            let now_s = elapsed / 1e3;
+            inner.metrics.add_render_seconds(now_s - counted_s);
+            counted_s = now_s;
             let lf = Arc::new(LiveFrame::new(f.clone(), exposure, progress.clone()));
             latest = Some(Arc::clone(&lf));
             let mut j = job.clone();
@@ -645,9 +697,13 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     let outcome = outcome.unwrap_or_else(|p| {
         let msg = panic_message(p.as_ref());
         tracing::error!(%id, "render panicked: {msg}");
-        Outcome::Failed(json!({"code": "render_failed", "message": format!("the render failed: {msg}")}))
+        Outcome::Failed(
+            json!({"code": "render_failed", "message": format!("the render failed: {msg}")}),
+        )
     });
-    inner.metrics.add_render_seconds(start.elapsed().as_secs_f64());
+    inner
+        .metrics
+        .add_render_seconds(start.elapsed().as_secs_f64() - counted_s);
 
     let (state, stats, error, final_frame) = match outcome {
         Outcome::Done(f) => {
@@ -685,7 +741,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             Err(e) => tracing::error!(%id, "cannot store the final frame: {e}"),
         }
     }
-    let progress = final_frame.as_ref().map(|f| f.progress.clone()).or_else(|| job.progress.clone());
+    let progress = final_frame
+        .as_ref()
+        .map(|f| f.progress.clone())
+        .or_else(|| job.progress.clone());
     match inner.rt.block_on(inner.store.finish(
         id,
         state,
@@ -741,7 +800,11 @@ mod tests {
             distance: None,
             classes: Image::filled(1, 1, ClassCell::None),
             stats: RenderStats {
-                per_iteration: vec![IterationStats { iteration, mean_distance: d, ..Default::default() }],
+                per_iteration: vec![IterationStats {
+                    iteration,
+                    mean_distance: d,
+                    ..Default::default()
+                }],
                 final_mean_distance: d,
                 pixel_fraction: 0.1,
                 ..Default::default()
@@ -767,7 +830,10 @@ mod tests {
         let mut t = EtaTracker::new(1.0, 64);
         t.update(&frame(0, 4.0, false), 10.0);
         assert_eq!(t.update(&frame(1, 5.0, false), 20.0), (None, None));
-        assert_eq!(t.update(&frame(2, f64::NAN, true), 30.0), (Some(0.0), Some(1.0)));
+        assert_eq!(
+            t.update(&frame(2, f64::NAN, true), 30.0),
+            (Some(0.0), Some(1.0))
+        );
     }
 
     #[test]
@@ -844,7 +910,13 @@ mod tests {
             assert_eq!(j.state, JobState::Failed);
             let err = j.error.unwrap();
             assert_eq!(err["code"], "render_failed");
-            assert!(err["message"].as_str().unwrap().contains("boom in the tracer"), "{err}");
+            assert!(
+                err["message"]
+                    .as_str()
+                    .unwrap()
+                    .contains("boom in the tracer"),
+                "{err}"
+            );
             assert!(j.has_frame && j.finished_at.is_some());
             let png = std::fs::read(jobs.store().layer_path(id, "image", false).unwrap()).unwrap();
             assert_eq!(crate::raster::decode_image(&png).unwrap().width(), 4);

@@ -21,7 +21,8 @@ pub struct Metrics {
 impl Metrics {
     pub fn add_render_seconds(&self, s: f64) {
         if s.is_finite() && s > 0.0 {
-            self.render_micros.fetch_add((s * 1e6) as u64, Ordering::Relaxed);
+            self.render_micros
+                .fetch_add((s * 1e6) as u64, Ordering::Relaxed);
         }
     }
 }
@@ -53,7 +54,12 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
         let _ = writeln!(out, "glimpse_jobs{{state=\"{}\"}} {n}", st.as_str());
     }
     let lines: [(&str, &str, &str, String); 6] = [
-        ("glimpse_queue_depth", "gauge", "Jobs waiting for a worker.", jobs.queue_depth().to_string()),
+        (
+            "glimpse_queue_depth",
+            "gauge",
+            "Jobs waiting for a worker.",
+            jobs.queue_depth().to_string(),
+        ),
         (
             "glimpse_jobs_submitted_total",
             "counter",
@@ -70,7 +76,10 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
             "glimpse_render_seconds_total",
             "counter",
             "Wall time spent rendering since start.",
-            format!("{:.6}", m.render_micros.load(Ordering::Relaxed) as f64 / 1e6),
+            format!(
+                "{:.6}",
+                m.render_micros.load(Ordering::Relaxed) as f64 / 1e6
+            ),
         ),
         (
             "glimpse_websocket_watchers",

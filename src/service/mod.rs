@@ -40,6 +40,9 @@ pub struct Config {
     pub max_body_bytes: usize,
     /// Scene size limits for requests (pixels, sample budget, objects, triangles).
     pub limits: Limits,
+    /// Open job streams, all jobs together; beyond it `503 unavailable` (each stream holds
+    /// a connection, a task and possibly an encoded frame).
+    pub max_watchers: usize,
 }
 
 impl Config {
@@ -53,12 +56,15 @@ impl Config {
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             limits: server_limits(),
+            max_watchers: DEFAULT_MAX_WATCHERS,
         }
     }
 }
 
 /// 64 waiting jobs: at a few seconds each, minutes of backlog; more is better refused.
 pub const DEFAULT_QUEUE_CAPACITY: usize = 64;
+/// 256 streams: a lecture room watching one job, with room to spare.
+pub const DEFAULT_MAX_WATCHERS: usize = 256;
 /// 8 MiB: room for a mesh of ~100k triangles in JSON, small enough to buffer per request.
 pub const DEFAULT_MAX_BODY_BYTES: usize = 8 << 20;
 
@@ -91,9 +97,12 @@ pub async fn run(
     config: Config,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    let store = store::Store::open(&config.data_dir)
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot open the job store in {}: {e}", config.data_dir.display()))?;
+    let store = store::Store::open(&config.data_dir).await.map_err(|e| {
+        anyhow::anyhow!(
+            "cannot open the job store in {}: {e}",
+            config.data_dir.display()
+        )
+    })?;
     let metrics = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,
@@ -111,6 +120,7 @@ pub async fn run(
         token: config.token.filter(|t| !t.is_empty()).map(Arc::from),
         stop: stop.clone(),
         max_body_bytes: config.max_body_bytes,
+        max_watchers: config.max_watchers,
     };
     let app = http::router(state);
     let stop2 = stop.clone();
@@ -118,7 +128,9 @@ pub async fn run(
         shutdown.await;
         stop2.cancel();
     });
-    let served = axum::serve(listener, app).with_graceful_shutdown(stop.clone().cancelled_owned()).await;
+    let served = axum::serve(listener, app)
+        .with_graceful_shutdown(stop.clone().cancelled_owned())
+        .await;
     // Also reached if serving failed: never leave workers rendering behind us.
     stop.cancel();
     jobs.shutdown().await;

@@ -30,8 +30,13 @@ pub enum JobState {
 }
 
 impl JobState {
-    pub const ALL: [JobState; 5] =
-        [JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled];
+    pub const ALL: [JobState; 5] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Succeeded,
+        JobState::Failed,
+        JobState::Cancelled,
+    ];
 
     #[must_use]
     pub fn as_str(self) -> &'static str {
@@ -52,7 +57,10 @@ impl JobState {
     /// Succeeded, failed or cancelled: nothing will change any more.
     #[must_use]
     pub fn is_finished(self) -> bool {
-        matches!(self, JobState::Succeeded | JobState::Failed | JobState::Cancelled)
+        matches!(
+            self,
+            JobState::Succeeded | JobState::Failed | JobState::Cancelled
+        )
     }
 }
 
@@ -130,7 +138,8 @@ pub fn now_rfc3339() -> String {
     let now = time::OffsetDateTime::now_utc();
     // Millisecond precision: enough to order events, short enough to read.
     let now = now.replace_millisecond(now.millisecond()).unwrap_or(now);
-    now.format(&time::format_description::well_known::Rfc3339).unwrap_or_default()
+    now.format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_default()
 }
 
 /// Names of the stored layer files; `image.exr` is the linear HDR image.
@@ -157,7 +166,10 @@ impl Store {
             .synchronous(SqliteSynchronous::Full)
             .busy_timeout(Duration::from_secs(5))
             .foreign_keys(true);
-        let pool = SqlitePoolOptions::new().max_connections(4).connect_with(opts).await?;
+        let pool = SqlitePoolOptions::new()
+            .max_connections(4)
+            .connect_with(opts)
+            .await?;
         sqlx::migrate!("./migrations").run(&pool).await?;
         Ok(Self { pool, jobs_dir })
     }
@@ -174,13 +186,15 @@ impl Store {
 
     pub async fn insert(&self, id: Uuid, name: &str, scene: &str) -> Result<JobRecord, StoreError> {
         let created = now_rfc3339();
-        sqlx::query("INSERT INTO jobs (id, name, state, scene, created_at) VALUES (?, ?, 'queued', ?, ?)")
-            .bind(id.to_string())
-            .bind(name)
-            .bind(scene)
-            .bind(&created)
-            .execute(&self.pool)
-            .await?;
+        sqlx::query(
+            "INSERT INTO jobs (id, name, state, scene, created_at) VALUES (?, ?, 'queued', ?, ?)",
+        )
+        .bind(id.to_string())
+        .bind(name)
+        .bind(scene)
+        .bind(&created)
+        .execute(&self.pool)
+        .await?;
         Ok(JobRecord {
             id,
             state: JobState::Queued,
@@ -211,7 +225,11 @@ impl Store {
     }
 
     /// Newest first (UUIDv7 ids sort by creation time).
-    pub async fn list(&self, state: Option<JobState>, limit: u32) -> Result<Vec<JobRecord>, StoreError> {
+    pub async fn list(
+        &self,
+        state: Option<JobState>,
+        limit: u32,
+    ) -> Result<Vec<JobRecord>, StoreError> {
         let rows: Vec<Row> = match state {
             Some(s) => {
                 sqlx::query_as(&format!(
@@ -223,10 +241,12 @@ impl Store {
                 .await?
             }
             None => {
-                sqlx::query_as(&format!("SELECT {COLUMNS} FROM jobs ORDER BY id DESC LIMIT ?"))
-                    .bind(i64::from(limit))
-                    .fetch_all(&self.pool)
-                    .await?
+                sqlx::query_as(&format!(
+                    "SELECT {COLUMNS} FROM jobs ORDER BY id DESC LIMIT ?"
+                ))
+                .bind(i64::from(limit))
+                .fetch_all(&self.pool)
+                .await?
             }
         };
         rows.into_iter().map(Row::into_record).collect()
@@ -234,8 +254,13 @@ impl Store {
 
     pub async fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
         let rows: Vec<(String, i64)> =
-            sqlx::query_as("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetch_all(&self.pool).await?;
-        Ok(rows.into_iter().filter_map(|(s, n)| JobState::parse(&s).map(|s| (s, n))).collect())
+            sqlx::query_as("SELECT state, COUNT(*) FROM jobs GROUP BY state")
+                .fetch_all(&self.pool)
+                .await?;
+        Ok(rows
+            .into_iter()
+            .filter_map(|(s, n)| JobState::parse(&s).map(|s| (s, n)))
+            .collect())
     }
 
     /// queued → running; false if the job was no longer queued (cancelled meanwhile).
@@ -306,9 +331,10 @@ impl Store {
         sqlx::query("UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL WHERE state = 'running'")
             .execute(&self.pool)
             .await?;
-        let ids: Vec<String> = sqlx::query_scalar("SELECT id FROM jobs WHERE state = 'queued' ORDER BY id ASC")
-            .fetch_all(&self.pool)
-            .await?;
+        let ids: Vec<String> =
+            sqlx::query_scalar("SELECT id FROM jobs WHERE state = 'queued' ORDER BY id ASC")
+                .fetch_all(&self.pool)
+                .await?;
         ids.iter()
             .map(|s| Uuid::parse_str(s).map_err(|e| StoreError::Corrupt(e.to_string())))
             .collect()
@@ -316,10 +342,12 @@ impl Store {
 
     /// Removes a finished job and its images; false if it does not exist or is not finished.
     pub async fn delete_finished(&self, id: Uuid) -> Result<bool, StoreError> {
-        let r = sqlx::query("DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')")
-            .bind(id.to_string())
-            .execute(&self.pool)
-            .await?;
+        let r = sqlx::query(
+            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
+        )
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
         if r.rows_affected() == 0 {
             return Ok(false);
         }
@@ -336,7 +364,11 @@ impl Store {
     #[must_use]
     pub fn layer_path(&self, id: Uuid, layer: &str, exr: bool) -> Option<PathBuf> {
         let name = LAYER_FILES.iter().find(|l| **l == layer)?;
-        let file = if exr { format!("{name}.exr") } else { format!("{name}.png") };
+        let file = if exr {
+            format!("{name}.exr")
+        } else {
+            format!("{name}.png")
+        };
         Some(self.job_dir(id).join(file))
     }
 }

@@ -39,8 +39,23 @@ pub async fn stream(
         return Err(ApiError::not_found_job(&id.to_string()));
     }
     let ws = ws.map_err(|e| {
-        ApiError::new(ErrorCode::InvalidParameter, format!("this route is a WebSocket: {}", e.body_text()))
+        ApiError::new(
+            ErrorCode::InvalidParameter,
+            format!("this route is a WebSocket: {}", e.body_text()),
+        )
     })?;
+    let watching = st
+        .metrics
+        .ws_watchers
+        .load(std::sync::atomic::Ordering::Relaxed);
+    if usize::try_from(watching).unwrap_or(0) >= st.max_watchers {
+        let mut e = ApiError::new(
+            ErrorCode::Unavailable,
+            format!("too many open streams ({watching}); retry later"),
+        );
+        e.retry_after_s = Some(5);
+        return Err(e);
+    }
     Ok(ws.on_upgrade(move |socket| async move {
         let _guard = WatcherGuard::new(&st.metrics);
         let (mut tx, mut rx) = socket.split();
@@ -88,7 +103,9 @@ enum StreamError {
 }
 
 async fn send(tx: &mut Tx, m: Message) -> Result<(), StreamError> {
-    tokio::time::timeout(SEND_TIMEOUT, tx.send(m)).await.map_err(|_| StreamError::Timeout)??;
+    tokio::time::timeout(SEND_TIMEOUT, tx.send(m))
+        .await
+        .map_err(|_| StreamError::Timeout)??;
     Ok(())
 }
 
@@ -109,7 +126,10 @@ async fn send_frame(tx: &mut Tx, lf: &Arc<LiveFrame>) -> Result<(), StreamError>
 /// The last message for a finished job.
 fn final_message(job: &JobRecord) -> Value {
     if job.state == JobState::Failed {
-        let error = job.error.clone().unwrap_or_else(|| json!({"code": "render_failed", "message": "the render failed"}));
+        let error = job
+            .error
+            .clone()
+            .unwrap_or_else(|| json!({"code": "render_failed", "message": "the render failed"}));
         let error = json!({
             "code": error.get("code").cloned().unwrap_or(json!("render_failed")),
             "message": error.get("message").cloned().unwrap_or(json!("the render failed")),
@@ -146,7 +166,13 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
             }
             snap = wrx.borrow_and_update().clone();
         }
-        if let Some(job) = st.jobs.store().get(id).await.map_err(|e| StreamError::Other(e.to_string()))? {
+        if let Some(job) = st
+            .jobs
+            .store()
+            .get(id)
+            .await
+            .map_err(|e| StreamError::Other(e.to_string()))?
+        {
             if job.state.is_finished() {
                 send_json(tx, &final_message(&job)).await?;
             } else {
@@ -156,7 +182,13 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
         return Ok(());
     }
     // Not live: finished (or unknown after a race with DELETE).
-    let Some(job) = st.jobs.store().get(id).await.map_err(|e| StreamError::Other(e.to_string()))? else {
+    let Some(job) = st
+        .jobs
+        .store()
+        .get(id)
+        .await
+        .map_err(|e| StreamError::Other(e.to_string()))?
+    else {
         let e = ApiError::not_found_job(&id.to_string());
         return send_json(tx, &json!({"type": "error", "error": e.body()["error"]})).await;
     };
@@ -164,11 +196,21 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
     if job.has_frame {
         if let Some(path) = st.jobs.store().layer_path(id, "image", false) {
             if let Ok(png) = tokio::fs::read(&path).await {
-                let iteration = job.progress.as_ref().and_then(|p| p.get("iteration")).cloned().unwrap_or(json!(0));
+                let iteration = job
+                    .progress
+                    .as_ref()
+                    .and_then(|p| p.get("iteration"))
+                    .cloned()
+                    .unwrap_or(json!(0));
                 let layers: Vec<&str> = super::store::LAYER_FILES
                     .iter()
                     .copied()
-                    .filter(|l| st.jobs.store().layer_path(id, l, false).is_some_and(|p| p.exists()))
+                    .filter(|l| {
+                        st.jobs
+                            .store()
+                            .layer_path(id, l, false)
+                            .is_some_and(|p| p.exists())
+                    })
                     .collect();
                 send_json(
                     tx,

@@ -3,6 +3,9 @@
 //! bounces, `max_bounces` scattering events at most (pbrt's `maxdepth` convention:
 //! 0 = only directly visible emitters, 1 = direct lighting).
 
+// `!(x > 0.0)` is used on purpose: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::bvh::NONE;
 use super::material::Bsdf;
 use super::rng::Rng;
@@ -92,15 +95,19 @@ impl PathTracer {
                         let (fc, bsdf_pdf) = bsdf.eval(wo, frame.to_local(ls.wi));
                         if fc != Vec3::ZERO {
                             let origin = offset_ray_origin(s.p, ng);
-                            // Distance from the offset origin, not from the hit point: the
-                            // offset (256 ulps) can move the origin toward the light by more
-                            // than the shrink margin.
-                            let tmax = if ls.dist.is_finite() {
-                                (s.p + ls.wi * ls.dist - origin).dot(ls.wi) * SHADOW_SHRINK
+                            // Aim from the offset origin at the sampled point itself: the
+                            // offset (256 ulps, 2 units at 1e5) moves the origin sideways, and a
+                            // ray parallel to `wi` would meet the light's plane before `tmax`.
+                            let (shadow_dir, tmax) = if ls.dist.is_finite() {
+                                let v = s.p + ls.wi * ls.dist - origin;
+                                let len = v.length();
+                                (v / len, len * SHADOW_SHRINK)
                             } else {
-                                f32::INFINITY
+                                (ls.wi, f32::INFINITY)
                             };
-                            if !self.geo.occluded(origin, ls.wi, tmax, hit.prim) {
+                            if shadow_dir.is_finite()
+                                && !self.geo.occluded(origin, shadow_dir, tmax, hit.prim)
+                            {
                                 let w = if ls.delta {
                                     1.0
                                 } else {

@@ -2,6 +2,9 @@
 //! chosen for next-event estimation with probability proportional to an estimate of
 //! their power (pbrt-v4 `PowerLightSampler`).
 
+// `!(x > 0.0)` is used on purpose: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use super::bvh::{Geometry, Prim, NONE};
 use super::sampling::{average, uniform_cone, uniform_sphere, uniform_triangle, Frame};
 use crate::scene::{Light, Material, Scene};

@@ -75,7 +75,12 @@ impl Default for Calibration {
             band_cpd: vec![16.0, 8.0, 4.0, 2.0, 1.0, 0.5],
             min_sigma_px: 0.5,
             kernel_radius_sigmas: 3.0,
-            cone_gain: GainParams { scale: 0.555, offset: 1.0, exponent: 0.85, saturation: None },
+            cone_gain: GainParams {
+                scale: 0.555,
+                offset: 1.0,
+                exponent: 0.85,
+                saturation: None,
+            },
             rod_gain: GainParams {
                 scale: 0.908,
                 offset: 0.001,
@@ -118,7 +123,9 @@ impl Calibration {
     /// chromatic acuity cut-off.
     #[must_use]
     pub fn csf(&self, k: usize, f: f64) -> f64 {
-        let two = |c: &[f64; 6]| c[0] * (-c[1] * f.powf(c[2])).exp() + c[3] * (-c[4] * f.powf(c[5])).exp();
+        let two = |c: &[f64; 6]| {
+            c[0] * (-c[1] * f.powf(c[2])).exp() + c[3] * (-c[4] * f.powf(c[5])).exp()
+        };
         match k {
             0 => {
                 let [a, b, c] = self.csf_achromatic;
@@ -146,11 +153,19 @@ impl Calibration {
     /// (+c on every receptor), red–green (+cL₀, −cM₀), blue–yellow (+cS₀).
     #[must_use]
     pub fn w(&self, k: usize, l: f64) -> f64 {
-        const STIM: [[f64; 4]; 3] = [[1.0, 1.0, 1.0, 1.0], [1.0, -1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
+        const STIM: [[f64; 4]; 3] = [
+            [1.0, 1.0, 1.0, 1.0],
+            [1.0, -1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
         let r = Self::grey_receptors(l);
         let mut s = 0.0;
         for x in 0..4 {
-            let g = if x == 3 { self.rod_gain.gain(r[x]) } else { self.cone_gain.gain(r[x]) };
+            let g = if x == 3 {
+                self.rod_gain.gain(r[x])
+            } else {
+                self.cone_gain.gain(r[x])
+            };
             s += self.opponent[k][x] * STIM[k][x] * r[x] * g;
         }
         s.abs()
@@ -202,22 +217,40 @@ mod tests {
         ];
         for (i, gc, gr) in table {
             // The spec prints 5 significant digits, so 1e-4 relative is the check.
-            assert!(rel(c.cone_gain.gain(i), gc) < 1e-4, "G_cone({i}) = {}", c.cone_gain.gain(i));
-            assert!(rel(c.rod_gain.gain(i), gr) < 1e-4, "G_rod({i}) = {}", c.rod_gain.gain(i));
+            assert!(
+                rel(c.cone_gain.gain(i), gc) < 1e-4,
+                "G_cone({i}) = {}",
+                c.cone_gain.gain(i)
+            );
+            assert!(
+                rel(c.rod_gain.gain(i), gr) < 1e-4,
+                "G_rod({i}) = {}",
+                c.rod_gain.gain(i)
+            );
         }
     }
 
     #[test]
     fn csf_and_w_match_spec_2_5() {
         let c = Calibration::default();
-        for (f, a, rg, by) in [(8.0, 79.9, 114.4, 15.6), (4.0, 102.2, 155.0, 29.7), (1.0, 61.4, 165.8, 44.2)] {
+        for (f, a, rg, by) in [
+            (8.0, 79.9, 114.4, 15.6),
+            (4.0, 102.2, 155.0, 29.7),
+            (1.0, 61.4, 165.8, 44.2),
+        ] {
             assert!(rel(c.csf(0, f), a) < 2e-3, "S_A({f})");
             assert!(rel(c.csf(1, f), rg) < 2e-3, "S_RG({f})");
             assert!(rel(c.csf(2, f), by) < 5e-3, "S_BY({f})");
         }
         assert_eq!(c.csf(1, 16.0), 0.0);
         assert_eq!(c.csf(2, 16.0), 0.0);
-        for (l, w) in [(100.0, 9.939), (10.0, 6.721), (1.0, 3.760), (0.1, 1.200), (0.01, 0.5315)] {
+        for (l, w) in [
+            (100.0, 9.939),
+            (10.0, 6.721),
+            (1.0, 3.760),
+            (0.1, 1.200),
+            (0.01, 0.5315),
+        ] {
             assert!(rel(c.w(0, l), w) < 1e-3, "W_A({l}) = {}", c.w(0, l));
         }
         assert!(rel(c.w(1, 100.0), 6.819) < 1e-3);
@@ -243,8 +276,18 @@ mod tests {
         assert_eq!(c.transducer(0.0, 100.0), 0.0);
         // §2.6 worked values for A at 4 cpd (S = 102.2).
         let s = c.csf(0, 4.0);
-        for (x, t) in [(0.5, 0.584), (2.0, 1.713), (10.0, 5.98), (100.0, 30.3), (1000.0, 95.7)] {
-            assert!(rel(c.transducer(x, s), t) < 5e-3, "T({x}) = {}", c.transducer(x, s));
+        for (x, t) in [
+            (0.5, 0.584),
+            (2.0, 1.713),
+            (10.0, 5.98),
+            (100.0, 30.3),
+            (1000.0, 95.7),
+        ] {
+            assert!(
+                rel(c.transducer(x, s), t) < 5e-3,
+                "T({x}) = {}",
+                c.transducer(x, s)
+            );
         }
     }
 }

@@ -10,7 +10,7 @@ pub fn log2(x: f32) -> f32 {
     let bits = x.to_bits();
     let e = ((bits >> 23) & 0xff) as i32 - 127;
     let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // [1, 2)
-    // Centre the mantissa on 1 ([√½, √2)) so the atanh series converges fast.
+                                                                // Centre the mantissa on 1 ([√½, √2)) so the atanh series converges fast.
     let big = m > std::f32::consts::SQRT_2;
     let m = if big { m * 0.5 } else { m };
     let e = e + i32::from(big);
@@ -35,7 +35,8 @@ pub fn exp2(y: f32) -> f32 {
     let g = (yc - r - 0.5) * std::f32::consts::LN_2;
     let p = 1.0
         + g * (1.0
-            + g * (0.5 + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
+            + g * (0.5
+                + g * (1.0 / 6.0 + g * (1.0 / 24.0 + g * (1.0 / 120.0 + g * (1.0 / 720.0))))));
     // 2^r from bits: r + 2^23 + 127 holds the biased exponent r + 127 ∈ [1, 254] in its low
     // mantissa bits; shifting by 23 moves it into the exponent field.
     let scale = f32::from_bits((r + (8_388_608.0 + 127.0)).to_bits() << 23);
@@ -82,7 +83,11 @@ mod tests {
                 let want = f64::from(x).powf(f64::from(p));
                 if want > 1e-36 && want < 1e36 {
                     let got = f64::from(pow(x, p));
-                    assert!(((got - want) / want).abs() < 2e-5 * (1.0 + f64::from(x).log2().abs() / 20.0), "{x}^{p}");
+                    assert!(
+                        ((got - want) / want).abs()
+                            < 2e-5 * (1.0 + f64::from(x).log2().abs() / 20.0),
+                        "{x}^{p}"
+                    );
                 }
             }
             x *= 1.37;

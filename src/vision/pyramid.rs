@@ -37,12 +37,21 @@ impl LevelSpec {
     #[must_use]
     pub fn new(sigma: f64, src_sigma: f64, src_decim: u32, radius_sigmas: f64) -> Self {
         // §2.2: store decimated by 2^floor(log2 σ) once σ ≥ 1 px (aliasing ≤ 0.7 %).
-        let decim = if sigma >= 1.0 { 1u32 << (sigma.log2().floor() as u32).min(20) } else { 1 };
+        let decim = if sigma >= 1.0 {
+            1u32 << (sigma.log2().floor() as u32).min(20)
+        } else {
+            1
+        };
         let decim = decim.max(src_decim);
         let step = decim / src_decim;
         // Cascade: G_{n+1} = G_n * N(sqrt(σ_{n+1}² − σ_n²)), in the source's own pixels.
         let blur = (sigma * sigma - src_sigma * src_sigma).max(0.0).sqrt() / f64::from(src_decim);
-        Self { sigma, decim, kernel: kernel(blur, step, radius_sigmas), step }
+        Self {
+            sigma,
+            decim,
+            kernel: kernel(blur, step, radius_sigmas),
+            step,
+        }
     }
 }
 
@@ -98,15 +107,17 @@ pub fn build_level(src: &Plane, spec: &LevelSpec) -> Plane {
     let hi = spec.kernel.last().map_or(0, |t| t.0);
     // Horizontal pass: each source row into `dw` samples.
     let mut tmp = vec![[0f32; 4]; dw * sh];
-    tmp.par_chunks_mut(dw).enumerate().for_each_init(
-        || Vec::<P4>::new(),
-        |pad, (y, out)| {
+    tmp.par_chunks_mut(dw)
+        .enumerate()
+        .for_each_init(Vec::<P4>::new, |pad, (y, out)| {
             let row = &src.data[y * sw..(y + 1) * sw];
             // Mirror-padded copy so the inner loop has no index arithmetic.
             let left = (-lo).max(0) as usize;
             let right = hi.max(0) as usize + step;
             pad.clear();
-            pad.extend((0..left + sw + right).map(|i| row[mirror(i as i64 - left as i64, sw as i64)]));
+            pad.extend(
+                (0..left + sw + right).map(|i| row[mirror(i as i64 - left as i64, sw as i64)]),
+            );
             for (j, o) in out.iter_mut().enumerate() {
                 let base = (j * step + left) as i64;
                 let mut acc = [0f32; 4];
@@ -115,8 +126,7 @@ pub fn build_level(src: &Plane, spec: &LevelSpec) -> Plane {
                 }
                 *o = acc;
             }
-        },
-    );
+        });
     // Vertical pass: each output row is a weighted sum of whole source rows.
     let mut data = vec![[0f32; 4]; dw * dh];
     data.par_chunks_mut(dw).enumerate().for_each(|(j, out)| {
@@ -128,13 +138,18 @@ pub fn build_level(src: &Plane, spec: &LevelSpec) -> Plane {
             }
         }
     });
-    Plane { w: dw as u32, h: dh as u32, decim: src.decim * spec.step, data }
+    Plane {
+        w: dw as u32,
+        h: dh as u32,
+        decim: src.decim * spec.step,
+        data,
+    }
 }
 
 /// Bilinear lookup of a level at full-resolution pixel (x, y) (§2.2): sample position
 /// ((x+½)/D − ½, (y+½)/D − ½); clamping at the border equals the mirror rule for the
 /// half-sample overhang. Non-negative weights keep non-negative signals non-negative.
-#[inline]
+#[inline(always)]
 #[must_use]
 pub fn bilinear(p: &Plane, x: u32, y: u32) -> P4 {
     if p.decim == 1 {
@@ -148,7 +163,12 @@ pub fn bilinear(p: &Plane, x: u32, y: u32) -> P4 {
     let y1 = (y0 + 1).min(p.h as usize - 1);
     let (fx, fy) = (u - x0 as f32, v - y0 as f32);
     let w = p.w as usize;
-    let (a, b, c, d) = (p.data[y0 * w + x0], p.data[y0 * w + x1], p.data[y1 * w + x0], p.data[y1 * w + x1]);
+    let (a, b, c, d) = (
+        p.data[y0 * w + x0],
+        p.data[y0 * w + x1],
+        p.data[y1 * w + x0],
+        p.data[y1 * w + x1],
+    );
     let mut out = [0f32; 4];
     for k in 0..4 {
         let top = a[k] + (b[k] - a[k]) * fx;
@@ -180,7 +200,12 @@ mod tests {
 
     #[test]
     fn uniform_plane_stays_uniform_with_decimation() {
-        let src = Plane { w: 13, h: 7, decim: 1, data: vec![[3.0, 2.0, 1.0, 0.5]; 91] };
+        let src = Plane {
+            w: 13,
+            h: 7,
+            decim: 1,
+            data: vec![[3.0, 2.0, 1.0, 0.5]; 91],
+        };
         let spec = LevelSpec::new(2.5, 1.0, 1, 3.0);
         assert_eq!(spec.decim, 2);
         let out = build_level(&src, &spec);

@@ -58,6 +58,7 @@ start_server() {
   DATA=$(mktemp -d -t glimpse-browser-XXXXXX)
   local log="$OUT/server$1.log"
   shift
+  : >"$log" # truncate now: the background redirection below may happen after the first grep
   RUST_LOG=info "$BIN" serve --addr 127.0.0.1:0 --data "$DATA" --workers 1 "$@" >"$log" 2>&1 &
   SERVER_PID=$!
   BASE=""

@@ -194,6 +194,18 @@ async function main() {
     await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "distance");
     await page.screenshot({ path: shotPath, fullPage: true });
     console.log("  screenshot: " + shotPath);
+    await page.check("#layer-image");
+    await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "image");
+    const imageShotPath = shotPath.replace(/\.png$/, "-image.png");
+    await page.screenshot({ path: imageShotPath, fullPage: true });
+    console.log("  screenshot: " + imageShotPath);
+    // Responsive: on a phone-sized viewport the page has no horizontal scroll.
+    await page.setViewportSize({ width: 390, height: 844 });
+    const overflow = await page.evaluate(() => document.documentElement.scrollWidth - window.innerWidth);
+    const mobileShotPath = shotPath.replace(/\.png$/, "-mobile.png");
+    await page.screenshot({ path: mobileShotPath, fullPage: true });
+    check(overflow <= 0, "no horizontal overflow at 390 px wide (" + overflow + " px); " + mobileShotPath);
+    await page.setViewportSize({ width: 1280, height: 900 });
 
     // 5. reopen by address, jobs list ------------------------------------------------------------
     await page.goto(base + "/?job=" + encodeURIComponent(jobId));
