@@ -5,7 +5,14 @@ Renders a converged image (--converged-spp) and, at equal time, as many samples 
 as fit in --seconds (measured from a 1-spp pass), at --size x --size, path depth 6.
 Prints one JSON object: variant, spp, ms, test_exr, converged_exr.
 """
-import argparse, json, os, time
+import argparse, glob, json, os, time
+
+# Dr.Jit's LLVM backend aborts on Debian 12's LLVM 15/16 ("fminimum"); point it at a newer
+# libLLVM when one is installed (apt-get install libllvm19), else the scalar variant is used.
+if "DRJIT_LIBLLVM_PATH" not in os.environ:
+    newest = sorted(glob.glob("/usr/lib/x86_64-linux-gnu/libLLVM.so.19*"))
+    if newest:
+        os.environ["DRJIT_LIBLLVM_PATH"] = newest[-1]
 
 import mitsuba as mi
 
@@ -16,7 +23,9 @@ ap.add_argument("--converged-spp", type=int, default=1024)
 ap.add_argument("--out", required=True)
 a = ap.parse_args()
 
-variant = next(v for v in ("llvm_ad_rgb", "scalar_rgb") if v in mi.variants())
+variant = "scalar_rgb"
+if "DRJIT_LIBLLVM_PATH" in os.environ and "llvm_ad_rgb" in mi.variants():
+    variant = "llvm_ad_rgb"
 mi.set_variant(variant)
 
 def scene_with(spp):
@@ -24,7 +33,7 @@ def scene_with(spp):
     d["sensor"]["film"]["width"] = a.size
     d["sensor"]["film"]["height"] = a.size
     d["sensor"]["sampler"]["sample_count"] = spp
-    d["integrator"] = {"type": "path", "max_depth": 6}
+    d["integrator"] = {"type": "path", "max_depth": 7}  # Mitsuba counts the emitter vertex: 7 = our 6 bounces
     return mi.load_dict(d)
 
 def render(spp, seed):

@@ -46,6 +46,29 @@ pub struct ServeArgs {
     /// Largest request body in bytes.
     #[arg(long, default_value_t = crate::service::DEFAULT_MAX_BODY_BYTES)]
     pub max_body: usize,
+    /// Log format on stderr: `text` for people, `json` (one object per line) for log
+    /// collectors. Read by `main` before the subscriber is installed.
+    #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
+}
+
+/// How `main` formats tracing output (issue #6, operations).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum LogFormat {
+    #[default]
+    Text,
+    Json,
+}
+
+impl Cli {
+    /// The log format asked for: only `serve` has the option; other commands log text.
+    #[must_use]
+    pub fn log_format(&self) -> LogFormat {
+        match &self.command {
+            Command::Serve(a) => a.log_format,
+            _ => LogFormat::Text,
+        }
+    }
 }
 
 #[derive(clap::Args, Debug)]

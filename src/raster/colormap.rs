@@ -129,7 +129,8 @@ pub fn distance_with_legend(map: &Image<f32>) -> Image<[u8; 3]> {
     const BG: [u8; 3] = [24, 24, 24];
     const FG: [u8; 3] = [230, 230, 230];
     let w = map.width().max(120);
-    let scale = if w >= 240 { 2 } else { 1 };
+    // Text and bar grow with the map so the legend stays legible at any size.
+    let scale = (w / 256).clamp(1, 4);
     let bar_h = 6 * scale;
     let legend_h = 4 + bar_h + 2 + 2 * scale + 5 * scale + 4;
     let h = map.height() + legend_h;

@@ -501,6 +501,8 @@ impl Jobs {
         lock(&inner.live).insert(id, LiveJob::new(rec.clone()));
         inner.queue.push_reserved(id);
         inner.metrics.jobs_submitted.fetch_add(1, Ordering::Relaxed);
+        // One log line per state transition, keyed by `id` (issue #6, operations).
+        tracing::info!(%id, name, state = "queued", "job accepted");
         Ok(rec)
     }
 
@@ -549,6 +551,7 @@ impl Jobs {
         if self.inner.store.cancel_queued(id).await? {
             // It never started: finished now, and its queue slot is free at once.
             self.inner.queue.remove(id);
+            tracing::info!(%id, state = "cancelled", ms = 0u64, "job finished (cancelled while queued)");
             let rec = self.inner.store.get(id).await?.unwrap_or(rec);
             if let Some(l) = live {
                 l.publish(rec.clone(), None);
@@ -620,6 +623,7 @@ fn worker_loop(inner: &Arc<Inner>) {
         job.state = JobState::Running;
         job.started_at = Some(started);
         live.publish(job.clone(), None);
+        tracing::info!(%id, state = "running", "job started");
         inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
         run_job(inner, &live, job);
         inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
@@ -723,6 +727,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
                 if let Err(e) = inner.rt.block_on(inner.store.requeue(id)) {
                     tracing::error!(%id, "cannot requeue job: {e}");
                 }
+                tracing::info!(%id, state = "queued", "job requeued (shutdown)");
                 return;
             }
             (JobState::Cancelled, None, None, latest.take())
@@ -756,6 +761,12 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         Ok(finished) => job.finished_at = Some(finished),
         Err(e) => tracing::error!(%id, "cannot record the end of the job: {e}"),
     }
+    tracing::info!(
+        %id,
+        state = state.as_str(),
+        ms = u64::try_from(start.elapsed().as_millis()).unwrap_or(u64::MAX),
+        "job finished"
+    );
     job.state = state;
     job.progress = progress;
     job.stats = stats;
