@@ -188,3 +188,67 @@ async fn sigkill_then_restart_loses_no_job() {
     assert_eq!(l["jobs"].as_array().unwrap().len(), 5);
     drop(server);
 }
+
+/// Graceful shutdown (issue #6): SIGTERM during a render stops the server promptly and
+/// cleanly; the interrupted job is queued again and completes after a restart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let base = format!("http://127.0.0.1:{port}");
+    let c = reqwest::Client::new();
+    let mut server = spawn(dir.path(), port, &c).await;
+
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .json(&scene(128, 1024, "reference", 7))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while job(&c, &base, &id).await["state"] != "running" {
+        assert!(Instant::now() < deadline, "the job never ran");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // std has no way to send SIGTERM; the `kill` command does.
+    let pid = server.0.id().to_string();
+    let st = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+    assert!(st.success());
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = server.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(15),
+            "server did not stop within 15 s of SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success(), "graceful shutdown must exit 0, got {status}");
+    drop(server);
+
+    let _server = spawn(dir.path(), port, &c).await;
+    // Interrupted, not finished: the shutdown put it back in the queue.
+    let j = job(&c, &base, &id).await;
+    assert!(
+        j["state"] == "queued" || j["state"] == "running",
+        "the job should have been interrupted by SIGTERM: {j}"
+    );
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let j = job(&c, &base, &id).await;
+        match j["state"].as_str().unwrap() {
+            "succeeded" => break,
+            "queued" | "running" => {}
+            other => panic!("job ended {other} after the restart: {j}"),
+        }
+        assert!(Instant::now() < deadline, "job did not finish after the restart");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}

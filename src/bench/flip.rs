@@ -26,7 +26,10 @@ pub fn flip(reference: &LinearImage, test: &LinearImage, exposure: f32, ppd: f32
     };
     let map = nv_flip::flip(pack(reference), pack(test), ppd);
     let mut pool = nv_flip::FlipPool::from_image(&map);
-    FlipScore { mean: f64::from(pool.mean()), p99: f64::from(pool.get_percentile(0.99, true)) }
+    FlipScore {
+        mean: f64::from(pool.mean()),
+        p99: f64::from(pool.get_percentile(0.99, true)),
+    }
 }
 
 #[cfg(test)]
@@ -41,6 +44,9 @@ mod tests {
         let b = a.map(|p| *p * 0.5);
         let c = a.map(|p| *p * 0.9);
         let (fb, fc) = (flip(&a, &b, 1.0, 28.0).mean, flip(&a, &c, 1.0, 28.0).mean);
-        assert!(fb > fc && fc > 0.0, "halving ({fb}) must be worse than -10% ({fc})");
+        assert!(
+            fb > fc && fc > 0.0,
+            "halving ({fb}) must be worse than -10% ({fc})"
+        );
     }
 }

@@ -100,14 +100,21 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
         .filter(|p| p.extension().is_some_and(|e| e == "json"))
         .collect();
     files.sort();
-    anyhow::ensure!(!files.is_empty(), "no *.json scenes in {}", cfg.scenes_dir.display());
+    anyhow::ensure!(
+        !files.is_empty(),
+        "no *.json scenes in {}",
+        cfg.scenes_dir.display()
+    );
     std::fs::create_dir_all(&cfg.out_dir)
         .with_context(|| format!("cannot create {}", cfg.out_dir.display()))?;
 
     let mut results = Vec::new();
     for path in &files {
         let scene = load(path, cfg.quick)?;
-        eprintln!("bench: {} ({}x{}, {} spp)", scene.name, scene.width, scene.height, scene.render.samples_per_pixel);
+        eprintln!(
+            "bench: {} ({}x{}, {} spp)",
+            scene.name, scene.width, scene.height, scene.render.samples_per_pixel
+        );
         let r = bench_scene(&scene, cfg)?;
         eprintln!("{}", report::scene_table(&r));
         results.push(r);
@@ -121,12 +128,16 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
 /// samples per pixel stay the scene's: fewer would make the reference itself noisy, and a
 /// noisy reference is a different study (every method is then judged mostly on noise).
 fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
-    let json = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let json =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut scene = parse_scene(&json, &SceneOrigin::File { dir }, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     if scene.name.is_empty() {
-        scene.name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        scene.name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
     }
     if quick {
         let long = scene.width.max(scene.height);
@@ -189,14 +200,19 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     });
 
     let run_mode = |scene: &Scene, mode: RenderMode, max_pixels: Option<u64>| {
-        let opts = RenderOptions { mode: Some(mode), max_pixels, ..RenderOptions::default() };
+        let opts = RenderOptions {
+            mode: Some(mode),
+            max_pixels,
+            ..RenderOptions::default()
+        };
         let t = Instant::now();
         let frame = progressive::render(scene, &tracer, &opts, &mut |_| {}, &cancel)?;
         anyhow::Ok((frame, ms(t)))
     };
 
     let (prog, prog_ms) = run_mode(scene, RenderMode::Progressive, None)?;
-    let overhead = |s: &progressive::RenderStats| (s.metric_ms + s.triangulate_ms) / s.total_ms.max(1e-9);
+    let overhead =
+        |s: &progressive::RenderStats| (s.metric_ms + s.triangulate_ms) / s.total_ms.max(1e-9);
     methods.push(MethodResult {
         method: "progressive".into(),
         ms: prog_ms,
@@ -223,8 +239,12 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     });
 
     let t = Instant::now();
-    let (uni, uni_spp) =
-        uniform::render_equal_time(scene, &tracer, Duration::from_secs_f64(prog_ms / 1e3), &cancel)?;
+    let (uni, uni_spp) = uniform::render_equal_time(
+        scene,
+        &tracer,
+        Duration::from_secs_f64(prog_ms / 1e3),
+        &cancel,
+    )?;
     let uni_ms = ms(t);
     methods.push(MethodResult {
         method: "uniform (equal time)".into(),
@@ -238,7 +258,11 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         overhead_share: None,
     });
 
-    let t0s: &[f32] = if cfg.quick { &[0.5, 1.0, 2.0] } else { &[0.25, 0.5, 1.0, 2.0, 4.0] };
+    let t0s: &[f32] = if cfg.quick {
+        &[0.5, 1.0, 2.0]
+    } else {
+        &[0.25, 0.5, 1.0, 2.0, 4.0]
+    };
     let mut sweep = Vec::new();
     for &t0 in t0s {
         let mut s = scene.clone();
@@ -262,7 +286,16 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         None
     };
 
-    write_images(cfg, scene, &[("reference", &reference), ("progressive", &prog.image), ("guo", &guo.image), ("uniform", &uni)])?;
+    write_images(
+        cfg,
+        scene,
+        &[
+            ("reference", &reference),
+            ("progressive", &prog.image),
+            ("guo", &guo.image),
+            ("uniform", &uni),
+        ],
+    )?;
     let targets = check_targets(&methods, noise_floor, exposure_check);
     Ok(SceneResult {
         scene: scene.name.clone(),
@@ -280,7 +313,11 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
 
 /// The targets, checked against this run's numbers (the report says by how much a
 /// missed target is missed).
-fn check_targets(m: &[MethodResult], floor: FlipScore, exposure: Option<(f64, f64)>) -> Vec<TargetCheck> {
+fn check_targets(
+    m: &[MethodResult],
+    floor: FlipScore,
+    exposure: Option<(f64, f64)>,
+) -> Vec<TargetCheck> {
     let get = |name: &str| m.iter().find(|r| r.method.starts_with(name));
     let (Some(p), Some(g), Some(u)) = (get("progressive"), get("guo"), get("uniform")) else {
         return Vec::new();
@@ -289,7 +326,12 @@ fn check_targets(m: &[MethodResult], floor: FlipScore, exposure: Option<(f64, f6
         TargetCheck {
             target: "progressive FLIP ≤ 1.1 × noise floor".into(),
             met: p.flip.mean <= 1.1 * floor.mean,
-            detail: format!("{:.4} vs floor {:.4} ({:.2}×)", p.flip.mean, floor.mean, p.flip.mean / floor.mean.max(1e-12)),
+            detail: format!(
+                "{:.4} vs floor {:.4} ({:.2}×)",
+                p.flip.mean,
+                floor.mean,
+                p.flip.mean / floor.mean.max(1e-12)
+            ),
         },
         TargetCheck {
             target: "progressive time ≤ 0.35 × reference".into(),
@@ -299,12 +341,23 @@ fn check_targets(m: &[MethodResult], floor: FlipScore, exposure: Option<(f64, f6
         TargetCheck {
             target: "progressive FLIP < Guo FLIP at equal pixels".into(),
             met: p.flip.mean < g.flip.mean,
-            detail: format!("{:.4} vs {:.4} ({:.1}% vs {:.1}% traced)", p.flip.mean, g.flip.mean, p.pixel_fraction * 100.0, g.pixel_fraction * 100.0),
+            detail: format!(
+                "{:.4} vs {:.4} ({:.1}% vs {:.1}% traced)",
+                p.flip.mean,
+                g.flip.mean,
+                p.pixel_fraction * 100.0,
+                g.pixel_fraction * 100.0
+            ),
         },
         TargetCheck {
             target: "progressive FLIP < uniform FLIP at equal time".into(),
             met: p.flip.mean < u.flip.mean,
-            detail: format!("{:.4} vs {:.4} (uniform at {} spp)", p.flip.mean, u.flip.mean, u.spp.unwrap_or(0)),
+            detail: format!(
+                "{:.4} vs {:.4} (uniform at {} spp)",
+                p.flip.mean,
+                u.flip.mean,
+                u.spp.unwrap_or(0)
+            ),
         },
     ];
     if let Some(share) = p.overhead_share {
@@ -324,11 +377,18 @@ fn check_targets(m: &[MethodResult], floor: FlipScore, exposure: Option<(f64, f6
     t
 }
 
-fn write_images(cfg: &BenchConfig, scene: &Scene, imgs: &[(&str, &LinearImage)]) -> anyhow::Result<()> {
+fn write_images(
+    cfg: &BenchConfig,
+    scene: &Scene,
+    imgs: &[(&str, &LinearImage)],
+) -> anyhow::Result<()> {
     for (name, img) in imgs {
         let p = cfg.out_dir.join(format!("{}-{name}.png", scene.name));
-        std::fs::write(&p, crate::raster::encode_png_display(img, scene.display.exposure)?)
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        std::fs::write(
+            &p,
+            crate::raster::encode_png_display(img, scene.display.exposure)?,
+        )
+        .with_context(|| format!("cannot write {}", p.display()))?;
     }
     Ok(())
 }

@@ -35,11 +35,18 @@ pub struct PeerResult {
 pub fn run_mitsuba(cfg: &BenchConfig, scene_files: &[PathBuf]) -> Result<PeerResult, String> {
     let path = scene_files
         .iter()
-        .find(|p| p.file_stem().is_some_and(|s| s.to_string_lossy().contains("cornell")))
+        .find(|p| {
+            p.file_stem()
+                .is_some_and(|s| s.to_string_lossy().contains("cornell"))
+        })
         .ok_or("no cornell-box scene in the scene folder")?;
-    let probe = Command::new("python3").args(["-c", "import mitsuba"]).output();
+    let probe = Command::new("python3")
+        .args(["-c", "import mitsuba"])
+        .output();
     if !probe.is_ok_and(|o| o.status.success()) {
-        return Err("Mitsuba 3 is not installed here (`pip install mitsuba`): peer column skipped".into());
+        return Err(
+            "Mitsuba 3 is not installed here (`pip install mitsuba`): peer column skipped".into(),
+        );
     }
     let mut scene = super::load(path, cfg.quick).map_err(|e| e.to_string())?;
     // Mitsuba's built-in Cornell box is square; compare at one square size.
@@ -49,11 +56,20 @@ pub fn run_mitsuba(cfg: &BenchConfig, scene_files: &[PathBuf]) -> Result<PeerRes
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(&scene);
     let converged_spp = scene.render.samples_per_pixel * if cfg.quick { 16 } else { 32 };
-    let converged = tracer::render_reference_with(&tracer, Some((converged_spp, scene.render.seed ^ 1)), &cancel, &|_, _| {})
-        .map_err(|_| "cancelled")?;
+    let converged = tracer::render_reference_with(
+        &tracer,
+        Some((converged_spp, scene.render.seed ^ 1)),
+        &cancel,
+        &|_, _| {},
+    )
+    .map_err(|_| "cancelled")?;
     let t = Instant::now();
-    let opts = RenderOptions { mode: Some(RenderMode::Progressive), ..RenderOptions::default() };
-    let prog = progressive::render(&scene, &tracer, &opts, &mut |_| {}, &cancel).map_err(|_| "cancelled")?;
+    let opts = RenderOptions {
+        mode: Some(RenderMode::Progressive),
+        ..RenderOptions::default()
+    };
+    let prog = progressive::render(&scene, &tracer, &opts, &mut |_| {}, &cancel)
+        .map_err(|_| "cancelled")?;
     let glimpse_ms = t.elapsed().as_secs_f64() * 1e3;
     let exposure = scene.display.exposure;
     let ppd = scene.display.pixels_per_degree;
@@ -65,17 +81,31 @@ pub fn run_mitsuba(cfg: &BenchConfig, scene_files: &[PathBuf]) -> Result<PeerRes
     let m_conv_spp = if cfg.quick { 256 } else { 1024 };
     let o = Command::new("python3")
         .arg(&script)
-        .args(["--size", &size.to_string(), "--seconds", &format!("{:.3}", glimpse_ms / 1e3)])
+        .args([
+            "--size",
+            &size.to_string(),
+            "--seconds",
+            &format!("{:.3}", glimpse_ms / 1e3),
+        ])
         .args(["--converged-spp", &m_conv_spp.to_string(), "--out"])
         .arg(&out)
         .output()
         .map_err(|e| format!("cannot run {}: {e}", script.display()))?;
     if !o.status.success() {
-        return Err(format!("mitsuba script failed: {}", String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("")));
+        return Err(format!(
+            "mitsuba script failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        ));
     }
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).map_err(|e| format!("mitsuba script output: {e}"))?;
+    let v: serde_json::Value =
+        serde_json::from_slice(&o.stdout).map_err(|e| format!("mitsuba script output: {e}"))?;
     let read = |k: &str| -> Result<crate::raster::LinearImage, String> {
-        let p = v[k].as_str().ok_or(format!("mitsuba script output lacks {k}"))?;
+        let p = v[k]
+            .as_str()
+            .ok_or(format!("mitsuba script output lacks {k}"))?;
         decode_image(&std::fs::read(p).map_err(|e| e.to_string())?).map_err(|e| e.to_string())
     };
     let (m_test, m_ref) = (read("test_exr")?, read("converged_exr")?);

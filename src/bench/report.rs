@@ -30,22 +30,40 @@ pub fn scene_table(r: &SceneResult) -> String {
             m.flip.mean,
             m.flip.p99,
             m.glimpse_distance,
-            m.overhead_share.map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
+            m.overhead_share
+                .map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
         );
     }
     s.push_str("\nt0 sweep: ");
     for p in &r.sweep {
-        let _ = write!(s, "t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}; ", p.t0, p.time_ratio, p.pixel_fraction * 100.0, p.flip);
+        let _ = write!(
+            s,
+            "t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}; ",
+            p.t0,
+            p.time_ratio,
+            p.pixel_fraction * 100.0,
+            p.flip
+        );
     }
     s.push_str("\n\n| target | met | measured |\n|---|---|---|\n");
     for t in &r.targets {
-        let _ = writeln!(s, "| {} | {} | {} |", t.target, if t.met { "yes" } else { "**no**" }, t.detail);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} |",
+            t.target,
+            if t.met { "yes" } else { "**no**" },
+            t.detail
+        );
     }
     s
 }
 
 /// Writes report.md, results.json and tradeoff.svg into the output folder.
-pub fn write(cfg: &BenchConfig, results: &[SceneResult], peer: &Result<PeerResult, String>) -> anyhow::Result<()> {
+pub fn write(
+    cfg: &BenchConfig,
+    results: &[SceneResult],
+    peer: &Result<PeerResult, String>,
+) -> anyhow::Result<()> {
     let mut md = String::from("# Glimpse speed-versus-accuracy study\n\n");
     let _ = writeln!(
         md,
@@ -79,7 +97,8 @@ pub fn write(cfg: &BenchConfig, results: &[SceneResult], peer: &Result<PeerResul
     std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
     let json = serde_json::json!({ "scenes": results, "peer": peer.as_ref().ok(), "peer_error": peer.as_ref().err() });
     let p = cfg.out_dir.join("results.json");
-    std::fs::write(&p, serde_json::to_vec_pretty(&json)?).with_context(|| format!("cannot write {}", p.display()))?;
+    std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", p.display()))?;
     plot(cfg, results)?;
     println!("{md}");
     Ok(())
@@ -95,14 +114,22 @@ fn plot(cfg: &BenchConfig, results: &[SceneResult]) -> anyhow::Result<()> {
         .flat_map(|r| r.sweep.iter().map(|s| s.flip).chain([r.noise_floor.mean]))
         .fold(0.01f64, f64::max)
         * 1.1;
-    let max_t = results.iter().flat_map(|r| r.sweep.iter().map(|s| s.time_ratio)).fold(1.0f64, f64::max) * 1.05;
+    let max_t = results
+        .iter()
+        .flat_map(|r| r.sweep.iter().map(|s| s.time_ratio))
+        .fold(1.0f64, f64::max)
+        * 1.05;
     let mut chart = ChartBuilder::on(&root)
         .caption("Speed against accuracy (t0 sweep)", ("sans-serif", 20))
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(0f64..max_t, 0f64..max_flip)?;
-    chart.configure_mesh().x_desc("time / reference time").y_desc("FLIP vs independent reference").draw()?;
+    chart
+        .configure_mesh()
+        .x_desc("time / reference time")
+        .y_desc("FLIP vs independent reference")
+        .draw()?;
     for (i, r) in results.iter().enumerate() {
         let c = Palette99::pick(i).to_rgba();
         let pts: Vec<(f64, f64)> = r.sweep.iter().map(|s| (s.time_ratio, s.flip)).collect();
@@ -111,9 +138,16 @@ fn plot(cfg: &BenchConfig, results: &[SceneResult]) -> anyhow::Result<()> {
             .label(r.scene.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
         chart.draw_series(pts.iter().map(|&(x, y)| Circle::new((x, y), 3, c.filled())))?;
-        chart.draw_series(LineSeries::new([(0.0, r.noise_floor.mean), (max_t, r.noise_floor.mean)], c.stroke_width(1)))?;
+        chart.draw_series(LineSeries::new(
+            [(0.0, r.noise_floor.mean), (max_t, r.noise_floor.mean)],
+            c.stroke_width(1),
+        ))?;
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
     root.present()?;
     Ok(())
 }

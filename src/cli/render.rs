@@ -41,12 +41,16 @@ fn parse_mode(s: &str) -> Result<RenderMode, String> {
         "reference" => Ok(RenderMode::Reference),
         "progressive" => Ok(RenderMode::Progressive),
         "guo" => Ok(RenderMode::Guo),
-        _ => Err(format!("unknown mode {s:?}: expected reference, progressive or guo")),
+        _ => Err(format!(
+            "unknown mode {s:?}: expected reference, progressive or guo"
+        )),
     }
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once('x').ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
     let w: u32 = w.parse().map_err(|_| format!("bad width in {s:?}"))?;
     let h: u32 = h.parse().map_err(|_| format!("bad height in {s:?}"))?;
     if w == 0 || h == 0 {
@@ -58,7 +62,11 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     let json = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("cannot read scene {}", a.scene.display()))?;
-    let dir = a.scene.parent().map(std::path::Path::to_path_buf).unwrap_or_default();
+    let dir = a
+        .scene
+        .parent()
+        .map(std::path::Path::to_path_buf)
+        .unwrap_or_default();
     let mut scene = parse_scene(&json, &SceneOrigin::File { dir }, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
     for w in &scene.warnings {
@@ -75,7 +83,10 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         scene.height = h;
     }
     let tracer = PathTracer::new(&scene);
-    let opts = RenderOptions { mode: a.mode, ..RenderOptions::default() };
+    let opts = RenderOptions {
+        mode: a.mode,
+        ..RenderOptions::default()
+    };
     let bar = progress_bar();
     let mut on_frame = |f: &progressive::Frame| {
         bar.set_message(format!(
@@ -90,7 +101,8 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         .map_err(|_| anyhow::anyhow!("render cancelled"))?;
     bar.finish_and_clear();
     let png = raster::encode_png_display(&frame.image, scene.display.exposure)?;
-    std::fs::write(&a.output, png).with_context(|| format!("cannot write {}", a.output.display()))?;
+    std::fs::write(&a.output, png)
+        .with_context(|| format!("cannot write {}", a.output.display()))?;
     if let Some(p) = &a.exr {
         std::fs::write(p, raster::encode_exr(&frame.image)?)
             .with_context(|| format!("cannot write {}", p.display()))?;

@@ -9,6 +9,7 @@ use super::classify::{classify, guarded_t1, triangle_distances};
 use super::complex::{contour, rupture_direction, Boundary, ContourPixel, Stamp, FULL_TRACE_BELOW};
 use super::guo;
 use super::mesh::{gouraud, rasterise, Raster, Tri, Triangulator};
+use super::noise::{signal_distance, triangle_noise, Twin, TWIN_SEED};
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -45,6 +46,10 @@ pub struct Settings {
     pub exposure: f32,
     pub max_pixels: Option<u64>,
     pub max_time: Option<Duration>,
+    /// The scene's samples per pixel: the noise twins use the same estimator.
+    pub samples_per_pixel: u32,
+    /// Noise-aware classification ([`super::noise`]); perceptual mode only.
+    pub noise_compensation: bool,
 }
 
 /// The distance between two successive frames (the perceptual oracle). Implemented over
@@ -59,6 +64,19 @@ pub trait Judge {
         seeds: &[PixelCoord],
         iteration: u32,
     ) -> Option<Image<f32>>;
+
+    /// The distance map between the first frame (`first`, the Gouraud image of the first
+    /// estimates) and its noise twin (same triangulation, independent estimates): the
+    /// distance noise alone produces ([`super::noise`]). `None`: no compensation. Called
+    /// at most once, before the first `distance` call, whose `prev` is `first`.
+    fn noise_distance(
+        &mut self,
+        _first: &LinearImage,
+        _twin: &LinearImage,
+        _seeds: &[PixelCoord],
+    ) -> Option<Image<f32>> {
+        None
+    }
 }
 
 /// F&P04 §4.2's judge: the adaptive block map (metric §3) over the vision model (§2),
@@ -127,6 +145,26 @@ impl Judge for VisionJudge {
         };
         let map = block_map(&self.model, &a, &b, seeds, &params).map;
         self.cached = Some(b);
+        Some(map)
+    }
+
+    fn noise_distance(
+        &mut self,
+        first: &LinearImage,
+        twin: &LinearImage,
+        seeds: &[PixelCoord],
+    ) -> Option<Image<f32>> {
+        let a = self.model.decompose(&judged(first)).ok()?;
+        let b = self.model.decompose(&judged(twin)).ok()?;
+        // Its own metric seed (the frames use (seed, iteration ≥ 1)).
+        let params = MetricParams {
+            homogeneity: self.homogeneity,
+            epsilon: self.epsilon,
+            seed: self.seed ^ super::noise::TWIN_SEED,
+        };
+        let map = block_map(&self.model, &a, &b, seeds, &params).map;
+        // `first` is the next `distance` call's `prev`: decomposed once.
+        self.cached = Some(a);
         Some(map)
     }
 }
@@ -348,6 +386,24 @@ pub fn run<O: PixelOracle>(
     gouraud(&tris, &raster, &r.rad, &r.traced, &tri, cur.pixels_mut());
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
 
+    // Noise twin of the first sample set (super::noise): perceptual mode only, and only
+    // when something can become final (T0 > 0).
+    let noise_map: Option<Vec<f32>> =
+        if s.oracle == Oracle::Perceptual && s.noise_compensation && s.t0 > 0.0 {
+            noise_twin(
+                &mut r,
+                &traced_now,
+                &tris,
+                &raster,
+                &tri,
+                &cur,
+                judge,
+                cancel,
+            )?
+        } else {
+            None
+        };
+
     let t0 = f64::from(s.t0);
     let mut t1 = s.t1.map(|v| guarded_t1(t0, f64::from(v)));
     let mut prev: Option<LinearImage> = None;
@@ -388,7 +444,7 @@ pub fn run<O: PixelOracle>(
                         r.it.metric_ms += t.elapsed().as_secs_f64() * 1e3;
                         match d {
                             Some(map) if map.len() == n => {
-                                let td = triangle_distances(&raster, map.pixels());
+                                let mut td = triangle_distances(&raster, map.pixels());
                                 let finite: Vec<f64> = map
                                     .pixels()
                                     .iter()
@@ -396,8 +452,25 @@ pub fn run<O: PixelOracle>(
                                     .map(|&v| f64::from(v))
                                     .collect();
                                 mean_d = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
-                                // T1 = mean of the first map (F&P04 §5), guarded (§2.9).
-                                let t1v = *t1.get_or_insert_with(|| guarded_t1(t0, mean_d));
+                                // T1's base: the mean of the first map (F&P04 §5); with
+                                // noise compensation, the pixel-weighted mean of the
+                                // triangles' signal distances (super::noise).
+                                let mut t1_base = mean_d;
+                                if let Some(nm) = &noise_map {
+                                    let tn = triangle_noise(&raster, nm);
+                                    let (mut sum, mut cnt) = (0.0f64, 0usize);
+                                    for (t, (d, dn)) in td.iter_mut().zip(&tn).enumerate() {
+                                        *d = signal_distance(*d, *dn);
+                                        let k = raster.pixels_of(t).len();
+                                        if d.is_finite() {
+                                            sum += *d * k as f64;
+                                            cnt += k;
+                                        }
+                                    }
+                                    t1_base = sum / cnt.max(1) as f64;
+                                }
+                                // T1 guarded (§2.9).
+                                let t1v = *t1.get_or_insert_with(|| guarded_t1(t0, t1_base));
                                 classes = td.iter().map(|&d| classify(d, t0, t1v)).collect();
                                 // No NaN in any layer: a NaN distance is "unknown", shown
                                 // as 0 but judged +∞ (never final) by triangle_distances.
@@ -571,6 +644,68 @@ pub fn run<O: PixelOracle>(
     }
 }
 
+/// Traces the noise twin of the first sample set `first` and asks the judge for the
+/// distance between the two Gouraud images on the same triangulation (super::noise).
+/// `None` when the twins equal the first estimates bit for bit (noise-free oracle: F&P04
+/// unchanged, no map computed) or the judge has no map. Twin traces count in
+/// `noise_probe_pixels` and the timings, not in `pixels_traced` (they are not pixels of
+/// the image).
+#[allow(clippy::too_many_arguments)]
+fn noise_twin<O: PixelOracle>(
+    r: &mut Run<'_, O>,
+    first: &[PixelCoord],
+    tris: &[Tri],
+    raster: &Raster,
+    tri: &Triangulator,
+    cur: &LinearImage,
+    judge: &mut dyn Judge,
+    cancel: &CancelToken,
+) -> Result<Option<Vec<f32>>, Cancelled> {
+    let t = Instant::now();
+    let twin = Twin {
+        inner: r.oracle,
+        samples: r.s.samples_per_pixel,
+        seed: r.s.seed ^ TWIN_SEED,
+    };
+    let vals = tracer::trace_pixels(&twin, first, cancel)?;
+    r.it.trace_ms += t.elapsed().as_secs_f64() * 1e3;
+    r.stats.noise_probe_pixels += first.len() as u64;
+    let w = r.w as usize;
+    let mut rad2 = r.rad.clone();
+    let mut same = true;
+    for (p, v) in first.iter().zip(vals) {
+        let i = p.y as usize * w + p.x as usize;
+        let v = finite(v);
+        same &= v.to_array().map(f32::to_bits) == rad2[i].to_array().map(f32::to_bits);
+        rad2[i] = v;
+    }
+    if same {
+        return Ok(None);
+    }
+    let t = Instant::now();
+    let mut twin_img = Image::filled(r.w, r.h, Rgb::ZERO);
+    gouraud(tris, raster, &rad2, &r.traced, tri, twin_img.pixels_mut());
+    r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let map = judge.noise_distance(cur, &twin_img, first);
+    r.it.metric_ms += t.elapsed().as_secs_f64() * 1e3;
+    Ok(map.filter(|m| m.len() == r.n).map(|m| {
+        let v = m.into_vec();
+        let mean = step_noise_mean(&v);
+        r.stats.noise_distance_mean = mean;
+        v
+    }))
+}
+
+fn step_noise_mean(v: &[f32]) -> f64 {
+    let s: f64 = v
+        .iter()
+        .filter(|x| x.is_finite())
+        .map(|&x| f64::from(x))
+        .sum();
+    s / v.len().max(1) as f64 / std::f64::consts::SQRT_2
+}
+
 /// The interior of a complex triangle (F&P04 §4.2 / spec §4.4): along the rupture
 /// direction (perceptual mode) or the least-discrepancy direction (Guo), linear between
 /// the two contour values. Untouched (Gouraud) when the contour is not fully traced
@@ -687,6 +822,8 @@ mod tests {
             exposure: 1.0,
             max_pixels: None,
             max_time: None,
+            samples_per_pixel: 1,
+            noise_compensation: true,
         }
     }
 

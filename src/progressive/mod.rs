@@ -41,6 +41,7 @@ pub mod driver;
 pub mod guo;
 pub mod layers;
 pub mod mesh;
+pub mod noise;
 pub mod seeding;
 pub mod stats;
 pub mod uniform;
@@ -113,6 +114,9 @@ pub struct RenderOptions {
     pub max_pixels: Option<u64>,
     /// Stop after this much wall time (equal-time comparisons).
     pub max_time: Option<std::time::Duration>,
+    /// Noise-aware classification ([`noise`]); `None` = on. `Some(false)` runs F&P04's
+    /// classification on the raw distances (to measure the extension's effect).
+    pub noise_compensation: Option<bool>,
 }
 
 /// Renders `scene` with `oracle`, calling `on_frame` for every iteration.
@@ -179,6 +183,8 @@ fn settings(scene: &Scene, opts: &RenderOptions, oracle: driver::Oracle) -> driv
         exposure: scene.display.exposure,
         max_pixels: opts.max_pixels,
         max_time: opts.max_time,
+        samples_per_pixel: scene.render.samples_per_pixel,
+        noise_compensation: opts.noise_compensation.unwrap_or(true),
     }
 }
 

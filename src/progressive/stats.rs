@@ -45,4 +45,16 @@ pub struct RenderStats {
     /// "max_time", "no_triangles" (1-pixel-wide images are traced fully).
     #[serde(default)]
     pub stop_reason: Option<String>,
+    /// Noise twins traced after frame 0 (noise-aware extension of F&P04, see
+    /// `progressive::noise`): one re-estimate, with an independent seed, of every pixel of
+    /// the first sample set. Their time is in `trace_ms` and `total_ms`, but they are NOT in
+    /// `pixels_traced`/`pixel_fraction`, which count the pixels of the image (a twin never
+    /// becomes a pixel of the image). 0 when no twin was traced (Guo, reference, T0 = 0,
+    /// compensation off).
+    #[serde(default)]
+    pub noise_probe_pixels: u64,
+    /// Mean over the image of the per-step noise distance D_noise/√2 (JND); 0 for a
+    /// noise-free oracle or when no twin was traced.
+    #[serde(default)]
+    pub noise_distance_mean: f64,
 }

@@ -20,7 +20,8 @@ pub fn encode_png_rgb8(img: &Image<[u8; 3]>) -> Result<Vec<u8>, CodecError> {
     let buf = RgbImage::from_raw(img.width(), img.height(), flat)
         .ok_or_else(|| CodecError::Encode("buffer size mismatch".into()))?;
     let mut out = Cursor::new(Vec::new());
-    buf.write_to(&mut out, ImageFormat::Png).map_err(|e| CodecError::Encode(e.to_string()))?;
+    buf.write_to(&mut out, ImageFormat::Png)
+        .map_err(|e| CodecError::Encode(e.to_string()))?;
     Ok(out.into_inner())
 }
 
@@ -43,7 +44,8 @@ pub fn encode_exr(img: &LinearImage) -> Result<Vec<u8>, CodecError> {
     let buf = Rgb32FImage::from_raw(img.width(), img.height(), flat)
         .ok_or_else(|| CodecError::Encode("buffer size mismatch".into()))?;
     let mut out = Cursor::new(Vec::new());
-    buf.write_to(&mut out, ImageFormat::OpenExr).map_err(|e| CodecError::Encode(e.to_string()))?;
+    buf.write_to(&mut out, ImageFormat::OpenExr)
+        .map_err(|e| CodecError::Encode(e.to_string()))?;
     Ok(out.into_inner())
 }
 
@@ -59,7 +61,10 @@ pub fn decode_image(bytes: &[u8]) -> Result<LinearImage, CodecError> {
         ImageFormat::OpenExr | ImageFormat::Hdr => {
             let f = dynimg.to_rgb32f();
             let (w, h) = f.dimensions();
-            let data = f.pixels().map(|p| Rgb::new(p.0[0], p.0[1], p.0[2])).collect();
+            let data = f
+                .pixels()
+                .map(|p| Rgb::new(p.0[0], p.0[1], p.0[2]))
+                .collect();
             Image::from_vec(w, h, data)
         }
         _ => {

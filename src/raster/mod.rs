@@ -40,7 +40,11 @@ impl<T: Clone> Image<T> {
     /// An image filled with `value`.
     #[must_use]
     pub fn filled(width: u32, height: u32, value: T) -> Self {
-        Self { width, height, data: vec![value; width as usize * height as usize] }
+        Self {
+            width,
+            height,
+            data: vec![value; width as usize * height as usize],
+        }
     }
 }
 
@@ -48,7 +52,11 @@ impl<T> Image<T> {
     /// Wraps `data` (row-major). Returns `None` if the length does not match.
     #[must_use]
     pub fn from_vec(width: u32, height: u32, data: Vec<T>) -> Option<Self> {
-        (data.len() == width as usize * height as usize).then_some(Self { width, height, data })
+        (data.len() == width as usize * height as usize).then_some(Self {
+            width,
+            height,
+            data,
+        })
     }
 
     /// Builds an image by calling `f(x, y)` for every pixel.
@@ -60,7 +68,11 @@ impl<T> Image<T> {
                 data.push(f(x, y));
             }
         }
-        Self { width, height, data }
+        Self {
+            width,
+            height,
+            data,
+        }
     }
 
     #[must_use]
@@ -106,7 +118,11 @@ impl<T> Image<T> {
     /// Applies `f` to every pixel, keeping the size.
     #[must_use]
     pub fn map<U>(&self, f: impl FnMut(&T) -> U) -> Image<U> {
-        Image { width: self.width, height: self.height, data: self.data.iter().map(f).collect() }
+        Image {
+            width: self.width,
+            height: self.height,
+            data: self.data.iter().map(f).collect(),
+        }
     }
 }
 
