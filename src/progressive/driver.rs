@@ -9,7 +9,7 @@ use super::classify::{classify, guarded_t1, triangle_distances};
 use super::complex::{contour, rupture_direction, Boundary, ContourPixel, Stamp, FULL_TRACE_BELOW};
 use super::guo;
 use super::mesh::{gouraud, rasterise, Raster, Tri, Triangulator};
-use super::noise::{signal_distance, triangle_noise, Twin, TWIN_SEED};
+use super::noise::{signal_distance, spans_contour, triangle_noise, Twin, TWIN_SEED};
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -460,7 +460,11 @@ pub fn run<O: PixelOracle>(
                                     let tn = triangle_noise(&raster, nm);
                                     let (mut sum, mut cnt) = (0.0f64, 0usize);
                                     for (t, (d, dn)) in td.iter_mut().zip(&tn).enumerate() {
-                                        *d = signal_distance(*d, *dn);
+                                        // The object-id map is exact: a triangle across an
+                                        // object contour keeps F&P04's raw distance.
+                                        if !spans_contour(&raster, t, ids.pixels()) {
+                                            *d = signal_distance(*d, *dn);
+                                        }
                                         let k = raster.pixels_of(t).len();
                                         if d.is_finite() {
                                             sum += *d * k as f64;

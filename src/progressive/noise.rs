@@ -91,6 +91,19 @@ pub fn triangle_noise(raster: &Raster, noise_map: &[f32]) -> Vec<f64> {
         .collect()
 }
 
+/// True if triangle `t`'s pixels see more than one object (object-id map, one exact ray
+/// per pixel, §4.1). Such a triangle holds a geometric edge that noise compensation must
+/// not erase: it is classified on the raw distance, as in F&P04.
+#[must_use]
+pub fn spans_contour(raster: &Raster, t: usize, ids: &[ObjectId]) -> bool {
+    let px = raster.pixels_of(t);
+    let Some(&first) = px.first() else {
+        return false;
+    };
+    let id = ids[first as usize];
+    px.iter().any(|&i| ids[i as usize] != id)
+}
+
 /// `d_signal = (max(d^β − d_noise^β, 0))^(1/β)`; exactly `d` when `d_noise` is 0 (so a
 /// noise-free oracle keeps F&P04 bit for bit) and `+∞` stays `+∞`.
 #[must_use]

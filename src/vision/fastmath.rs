@@ -57,10 +57,12 @@ pub fn pow(x: f32, p: f32) -> f32 {
 
 /// Four lanes at once (the receptor or opponent channels of one band); written as a lane
 /// loop so LLVM emits SSE code.
+#[allow(dead_code)]
 pub type F4 = [f32; 4];
 
 /// Lane-wise `x^p`.
 #[inline(always)]
+#[allow(dead_code)]
 pub fn pow4(x: F4, p: F4) -> F4 {
     let mut o = [0f32; 4];
     for i in 0..4 {

@@ -17,13 +17,16 @@
 
 pub mod calib;
 mod fastmath;
+mod kernel;
 mod pyramid;
 
 pub use calib::{Calibration, GainParams};
 
 use crate::raster::{Image, LinearImage, PixelCoord};
 use calib::{DOG_PEAK_TIMES_SIGMA, RGB_TO_LMSR};
-use fastmath::{pow4, F4};
+#[cfg(test)]
+use fastmath::pow4;
+use kernel::{ChannelConsts, FastGain, TransducerConsts, LANES};
 use pyramid::{bilinear, build_level, LevelSpec, Plane, P4};
 use rayon::prelude::*;
 
@@ -62,12 +65,10 @@ pub struct BandInfo {
     pub sensitivity: [f64; 3],
     /// Channel contributes (S ≥ `min_sensitivity`).
     pub enabled: [bool; 3],
-    /// S_k(f_n) / (g_n W_k(L_ref)): band value → threshold units (lanes A, RG, BY, unused;
-    /// 0 for disabled channels, which makes their V exactly 0).
-    inv_thresh: F4,
-    /// Transducer exponent below the anchor and the anchor x_s.
-    p: F4,
-    xs: F4,
+    /// Per channel (A, RG, BY): S_k(f_n) / (g_n W_k(L_ref)) (band value → threshold
+    /// units; 0 for disabled channels, which makes their V exactly 0), the transducer
+    /// exponent below the anchor and the anchor x_s (§2.5, §2.6).
+    lanes: [ChannelConsts; 3],
 }
 
 /// The model for one display and one image size (bands depend on both).
@@ -79,69 +80,12 @@ pub struct VisionModel {
     /// N + 1 levels for N bands (empty when N = 0).
     levels: Vec<LevelSpec>,
     bands: Vec<BandInfo>,
-    cone_gain: GainTable,
-    rod_gain: GainTable,
-    /// Transducer above the anchor: response · (x/x_s)^q, q = ½ by default (sqrt fast path).
-    anchor_response: f32,
-    high_exponent: f32,
+    /// Receptor gains (§2.3) in the per-pixel kernel's form.
+    cone_gain: FastGain,
+    rod_gain: FastGain,
+    /// Transducer constants shared by all bands (§2.6).
+    transducer: TransducerConsts,
     opp: [[f32; 4]; 3],
-}
-
-/// A receptor gain function (§2.3) tabulated for the per-pixel path: the gains were more
-/// than half of the per-pixel cost when computed with two powers each. Entries are spaced
-/// 256 per octave of `u = I + offset` (indexed straight from the float's bits) and
-/// interpolated linearly between exact f64 values: relative error ≤ 2.1e-5, continuous,
-/// monotone like the function. Beyond 2^40 cd/m² it falls back to the exact formula.
-#[derive(Clone, Debug)]
-struct GainTable {
-    params: GainParams,
-    offset: f32,
-    /// `u.to_bits() >> SHIFT` of entry 0.
-    base: u32,
-    /// (u₀, G(u₀ − offset), slope) per entry.
-    entries: Vec<[f32; 3]>,
-}
-
-impl GainTable {
-    const SHIFT: u32 = 15;
-    const MAX_U: f32 = 1.099_511_6e12; // 2^40
-
-    fn new(params: &GainParams) -> Self {
-        // A zero or negative offset would put I = 0 at u ≤ 0; keep u positive.
-        let offset = (params.offset as f32).max(1e-9);
-        let base = offset.to_bits() >> Self::SHIFT;
-        let top = Self::MAX_U.to_bits() >> Self::SHIFT;
-        let g = |u: f32| params.gain(f64::from(u) - f64::from(offset));
-        let entries = (base..top)
-            .map(|k| {
-                // Entry 0 starts exactly at I = 0 so G(0) is exact.
-                let u0 = f32::from_bits(k << Self::SHIFT).max(offset);
-                let u1 = f32::from_bits((k + 1) << Self::SHIFT);
-                let (g0, g1) = (g(u0), g(u1));
-                [
-                    u0,
-                    g0 as f32,
-                    ((g1 - g0) / (f64::from(u1) - f64::from(u0))) as f32,
-                ]
-            })
-            .collect();
-        Self {
-            params: *params,
-            offset,
-            base,
-            entries,
-        }
-    }
-
-    #[inline(always)]
-    fn gain(&self, i: f32) -> f32 {
-        let u = i.max(0.0) + self.offset;
-        let k = (u.to_bits() >> Self::SHIFT).wrapping_sub(self.base) as usize;
-        match self.entries.get(k) {
-            Some(e) => e[1] + e[2] * (u - e[0]),
-            None => self.params.gain(f64::from(i)) as f32,
-        }
-    }
 }
 
 /// One image's multiscale decomposition (receptor pyramids), ready for per-pixel lookups.
@@ -235,25 +179,26 @@ impl VisionModel {
                 let g = measure_peak_gain(&levels, n, cpd / ppd);
                 let sensitivity: [f64; 3] = std::array::from_fn(|k| calib.csf(k, cpd));
                 let enabled = sensitivity.map(|s| s >= calib.min_sensitivity);
-                let mut inv_thresh = [0f32; 4];
-                let mut p = [1f32; 4];
-                let mut xs = [0f32; 4];
-                for k in 0..3 {
+                let lanes = std::array::from_fn(|k| {
                     if enabled[k] && g > 0.0 && w_ref[k] > 0.0 {
-                        inv_thresh[k] = (sensitivity[k] / (g * w_ref[k])) as f32;
-                        p[k] = calib.transducer_exponent(sensitivity[k]) as f32;
-                        xs[k] = (calib.transducer_anchor_contrast * sensitivity[k]) as f32;
+                        let xs = calib.transducer_anchor_contrast * sensitivity[k];
+                        ChannelConsts {
+                            inv_thresh: (sensitivity[k] / (g * w_ref[k])) as f32,
+                            p: calib.transducer_exponent(sensitivity[k]) as f32,
+                            xs: xs as f32,
+                            log2_xs: xs.log2() as f32,
+                        }
+                    } else {
+                        ChannelConsts::default()
                     }
-                }
+                });
                 BandInfo {
                     cpd,
                     sigma_px,
                     peak_gain: g,
                     sensitivity,
                     enabled,
-                    inv_thresh,
-                    p,
-                    xs,
+                    lanes,
                 }
             })
             .collect();
@@ -262,10 +207,12 @@ impl VisionModel {
             display,
             width,
             height,
-            cone_gain: GainTable::new(&calib.cone_gain),
-            rod_gain: GainTable::new(&calib.rod_gain),
-            anchor_response: calib.transducer_anchor_response as f32,
-            high_exponent: calib.transducer_high_exponent as f32,
+            cone_gain: FastGain::new(&calib.cone_gain),
+            rod_gain: FastGain::new(&calib.rod_gain),
+            transducer: TransducerConsts {
+                log2_response: calib.transducer_anchor_response.log2() as f32,
+                q: calib.transducer_high_exponent as f32,
+            },
             calib,
             levels,
             bands,
@@ -353,72 +300,29 @@ impl VisionModel {
     }
 
     /// The signed visible contrasts V_{n,k} (§2.6) at (x, y), band-major (A, RG, BY per
-    /// band), written to `out[..3N]`; returns 3N. Disabled channels are 0.
+    /// band), written to `out[..3N]`; returns 3N. Disabled channels are 0. Same kernel
+    /// (kernel.rs) as the distances.
     pub fn visible_contrasts(&self, s: &ContrastStack, x: u32, y: u32, out: &mut [f32]) -> usize {
-        let n = self.bands.len();
+        let n = self.bands.len().min(s.levels.len().saturating_sub(1));
         if n == 0 || x >= s.width || y >= s.height || out.len() < 3 * n {
             return 0;
         }
-        let mut lv = [[0f32; 4]; MAX_BANDS + 1];
-        for (l, p) in s.levels.iter().enumerate() {
-            lv[l] = bilinear(p, x, y);
-        }
-        for (bi, band) in self.bands.iter().enumerate() {
-            let (g, lo) = (lv[bi], lv[bi + 1]);
-            // §2.3: gain from the co-located low-pass one level coarser, clamped ≥ 0 (§2.9;
-            // the tables clamp).
-            let bt = [
-                self.cone_gain.gain(lo[0]) * (g[0] - lo[0]),
-                self.cone_gain.gain(lo[1]) * (g[1] - lo[1]),
-                self.cone_gain.gain(lo[2]) * (g[2] - lo[2]),
-                self.rod_gain.gain(lo[3]) * (g[3] - lo[3]),
-            ];
-            // §2.4 opponent channels, then §2.5 threshold units.
-            let mut c = [0f32; 4];
-            let mut x = [0f32; 4];
-            let mut xl = [1f32; 4];
-            for k in 0..3 {
-                let o = &self.opp[k];
-                c[k] = o[0] * bt[0] + o[1] * bt[1] + o[2] * bt[2] + o[3] * bt[3];
-                x[k] = c[k].abs() * band.inv_thresh[k];
-                xl[k] = x[k].max(1e-30);
-            }
-            // §2.6 transducer, both branches computed lane-wise, then selected.
-            let low = pow4(xl, band.p);
-            let high = if self.high_exponent == 0.5 {
-                std::array::from_fn::<f32, 4, _>(|k| (xl[k] / band.xs[k].max(1e-30)).sqrt())
-            } else {
-                pow4(
-                    std::array::from_fn(|k| xl[k] / band.xs[k].max(1e-30)),
-                    [self.high_exponent; 4],
-                )
-            };
-            for k in 0..3 {
-                let t = if x[k] <= 1e-30 {
-                    0.0
-                } else if x[k] < band.xs[k] {
-                    low[k]
-                } else {
-                    self.anchor_response * high[k]
-                };
-                out[3 * bi + k] = if c[k] < 0.0 { -t } else { t };
-            }
+        let taps = self.taps(s, &[x; LANES], &[y; LANES]);
+        let mut v = [[[0f32; LANES]; 3]; MAX_BANDS];
+        self.contrasts8(s, &taps, &mut v);
+        for (o, c) in out[..3 * n].iter_mut().zip(v.as_flattened()) {
+            *o = c[0];
         }
         3 * n
     }
 
     /// Perceptual distance in JNDs at pixel (x, y) between two decomposed images (§2.7).
+    /// Prefer [`Self::distances_at`] for many pixels (8 per kernel call).
     #[must_use]
     pub fn distance_at(&self, a: &ContrastStack, b: &ContrastStack, x: u32, y: u32) -> f32 {
-        let mut va = [0f32; 3 * MAX_BANDS];
-        let mut vb = [0f32; 3 * MAX_BANDS];
-        let n = self.visible_contrasts(a, x, y, &mut va);
-        let m = self.visible_contrasts(b, x, y, &mut vb);
-        minkowski(
-            &va[..n.min(m)],
-            &vb[..n.min(m)],
-            self.calib.minkowski as f32,
-        )
+        let mut d = [0f32];
+        self.batch(a, b, &|_| PixelCoord::new(x, y), &mut d);
+        d[0]
     }
 
     /// Batched [`Self::distance_at`]: `out[i]` = distance at `pixels[i]` (parallel for
@@ -432,16 +336,15 @@ impl VisionModel {
     ) {
         let n = pixels.len().min(out.len());
         // Below a few hundred pixels the rayon hand-off costs more than it saves.
+        const CHUNK: usize = 512;
         out[..n]
-            .par_iter_mut()
-            .with_min_len(256)
-            .zip(&pixels[..n])
-            .for_each(|(o, p)| {
-                *o = self.distance_at(a, b, p.x, p.y);
-            });
+            .par_chunks_mut(CHUNK)
+            .zip(pixels[..n].par_chunks(CHUNK))
+            .for_each(|(o, p)| self.batch(a, b, &|i| p[i], o));
     }
 
-    /// Every pixel's distance (the full map, for comparison and tests).
+    /// Every pixel's distance (the full map, for comparison and tests). Parallel over rows;
+    /// no allocation per pixel.
     #[must_use]
     pub fn full_map(&self, a: &ContrastStack, b: &ContrastStack) -> Image<f32> {
         let (w, h) = (a.width.min(b.width), a.height.min(b.height));
@@ -450,9 +353,7 @@ impl VisionModel {
             data.par_chunks_mut(w as usize)
                 .enumerate()
                 .for_each(|(y, row)| {
-                    for (x, o) in row.iter_mut().enumerate() {
-                        *o = self.distance_at(a, b, x as u32, y as u32);
-                    }
+                    self.batch(a, b, &|x| PixelCoord::new(x as u32, y as u32), row);
                 });
         }
         Image::from_vec(w, h, data).unwrap_or_else(|| Image::filled(w, h, 0.0))
@@ -502,8 +403,10 @@ fn measure_peak_gain(levels: &[LevelSpec], n: usize, freq: f64) -> f64 {
     peak / 0.5
 }
 
-/// (Σ |a_i − b_i|^β)^(1/β), scaled by the largest difference and summed in f64 (§2.7) so
+/// Scalar reference of the kernel's Minkowski sum (kernel.rs `distance8`), kept for the
+/// tests: (Σ |a_i − b_i|^β)^(1/β), scaled by the largest difference and summed in f64 (§2.7) so
 /// neither tiny nor huge differences under/overflow. Exactly 0 for identical vectors.
+#[cfg(test)]
 fn minkowski(a: &[f32], b: &[f32], beta: f32) -> f32 {
     let m = a
         .iter()
