@@ -2,47 +2,11 @@
 //! started again on the same data folder, and every accepted job still succeeds; a job
 //! finished before the crash keeps its state, statistics and final image.
 
+mod common;
+
+use common::{free_port, Proc};
 use serde_json::{json, Value};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn free_port() -> u16 {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    l.local_addr().unwrap().port()
-}
-
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-async fn spawn(data: &std::path::Path, port: u16, client: &reqwest::Client) -> Proc {
-    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
-        .arg(data)
-        .args(["--workers", "1"])
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let p = Proc(child);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while client
-        .get(format!("http://127.0.0.1:{port}/healthz"))
-        .send()
-        .await
-        .is_err()
-    {
-        assert!(Instant::now() < deadline, "server did not come up");
-        tokio::time::sleep(Duration::from_millis(25)).await;
-    }
-    p
-}
 
 fn scene(w: u32, spp: u32, mode: &str, seed: u64) -> Value {
     json!({
@@ -75,7 +39,7 @@ async fn sigkill_then_restart_loses_no_job() {
     let port = free_port();
     let base = format!("http://127.0.0.1:{port}");
     let c = reqwest::Client::new();
-    let mut server = spawn(dir.path(), port, &c).await;
+    let server = spawn(dir.path(), port, &c).await;
 
     // One job finished before the crash.
     let r = c
@@ -133,9 +97,7 @@ async fn sigkill_then_restart_loses_no_job() {
         assert!(Instant::now() < deadline, "the first job never ran");
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
-    server.0.kill().unwrap(); // SIGKILL: no shutdown code runs
-    server.0.wait().unwrap();
-    drop(server);
+    server.kill_hard(); // SIGKILL: no shutdown code runs
 
     let server = spawn(dir.path(), port, &c).await;
     // The finished job kept everything.
@@ -197,7 +159,7 @@ async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {
     let port = free_port();
     let base = format!("http://127.0.0.1:{port}");
     let c = reqwest::Client::new();
-    let mut server = spawn(dir.path(), port, &c).await;
+    let server = spawn(dir.path(), port, &c).await;
 
     let r = c
         .post(format!("{base}/v1/jobs"))
@@ -215,23 +177,11 @@ async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {
         assert!(Instant::now() < deadline, "the job never ran");
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
-    // std has no way to send SIGTERM; the `kill` command does.
-    let pid = server.0.id().to_string();
-    let st = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
-    assert!(st.success());
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = server.0.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(15),
-            "server did not stop within 15 s of SIGTERM"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    assert!(status.success(), "graceful shutdown must exit 0, got {status}");
-    drop(server);
+    let status = server.terminate().await;
+    assert!(
+        status.success(),
+        "graceful shutdown must exit 0, got {status}"
+    );
 
     let _server = spawn(dir.path(), port, &c).await;
     // Interrupted, not finished: the shutdown put it back in the queue.
@@ -248,7 +198,14 @@ async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {
             "queued" | "running" => {}
             other => panic!("job ended {other} after the restart: {j}"),
         }
-        assert!(Instant::now() < deadline, "job did not finish after the restart");
+        assert!(
+            Instant::now() < deadline,
+            "job did not finish after the restart"
+        );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
+}
+
+async fn spawn(data: &std::path::Path, port: u16, c: &reqwest::Client) -> Proc {
+    common::spawn(data, port, None, &["--workers", "1"], &[], c).await
 }

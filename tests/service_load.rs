@@ -9,9 +9,11 @@
 //! the default stream cap (`service::DEFAULT_MAX_WATCHERS` = 256), so no flag is needed.
 
 use futures_util::StreamExt;
+mod common;
+
+use common::{free_port, spawn};
 use serde_json::{json, Value};
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -27,73 +29,6 @@ const WALL_LIMIT: Duration = Duration::from_secs(120);
 /// so a per-watcher or per-job leak (a frame buffered per watcher, finished jobs kept
 /// live) fails the test while allocator noise does not.
 const RSS_LIMIT_KIB: u64 = 90 * 1024;
-
-fn free_port() -> u16 {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    l.local_addr().unwrap().port()
-}
-
-/// The server process; killed if a test fails before stopping it.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-impl Proc {
-    /// SIGTERM (graceful shutdown, as a service manager would), then the exit status.
-    async fn terminate(mut self) -> std::process::ExitStatus {
-        let pid = self.0.id().to_string();
-        let sent = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
-        assert!(sent.success(), "kill -TERM {pid} failed");
-        let deadline = Instant::now() + Duration::from_secs(15);
-        loop {
-            if let Some(st) = self.0.try_wait().unwrap() {
-                return st;
-            }
-            assert!(Instant::now() < deadline, "server did not stop on SIGTERM");
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    }
-}
-
-/// Starts `glimpse serve` with stderr (the logs) going to `log`; waits for `/healthz`.
-async fn spawn(
-    data: &Path,
-    port: u16,
-    log: &Path,
-    extra: &[&str],
-    env: &[(&str, &str)],
-    client: &reqwest::Client,
-) -> Proc {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_glimpse"));
-    cmd.args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
-        .arg(data)
-        .args(extra)
-        .env("RUST_LOG", "info")
-        .env_remove("GLIMPSE_LOG_FORMAT")
-        .env_remove("GLIMPSE_TOKEN")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(log).unwrap()));
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let p = Proc(cmd.spawn().unwrap());
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while client
-        .get(format!("http://127.0.0.1:{port}/healthz"))
-        .send()
-        .await
-        .is_err()
-    {
-        assert!(Instant::now() < deadline, "server did not come up");
-        tokio::time::sleep(Duration::from_millis(25)).await;
-    }
-    p
-}
 
 /// A small progressive job (several frames); `seed` varies the noise, `spp` the cost.
 fn scene(seed: u64, spp: u32) -> Value {
@@ -231,7 +166,7 @@ async fn fifty_jobs_and_two_hundred_watchers_stay_healthy_and_bounded() {
     let server = spawn(
         &dir.path().join("data"),
         port,
-        &log,
+        Some(&log),
         &["--workers", "2", "--queue", "64"],
         &[("GLIMPSE_LOG_FORMAT", "json")],
         &client,
@@ -396,7 +331,7 @@ async fn json_logs_have_one_line_per_job_transition() {
     let server = spawn(
         &dir.path().join("data"),
         port,
-        &log,
+        Some(&log),
         &["--log-format", "json"],
         &[],
         &client,

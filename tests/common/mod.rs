@@ -1,0 +1,86 @@
+//! Helpers shared by the tests that run the real `glimpse` binary as a server process
+//! (durability, graceful shutdown, load): a free loopback port, the process handle that
+//! kills the server if a test fails, SIGTERM, and start-up that waits for `/healthz`.
+#![allow(dead_code)] // each test file uses a different subset
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+pub fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+/// The server process; killed (SIGKILL) if a test fails before stopping it.
+pub struct Proc(pub Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Proc {
+    /// SIGTERM (graceful shutdown, as a service manager would), then the exit status.
+    /// std cannot send signals; the `kill` command can.
+    pub async fn terminate(mut self) -> std::process::ExitStatus {
+        let pid = self.0.id().to_string();
+        let sent = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        assert!(sent.success(), "kill -TERM {pid} failed");
+        let deadline = Instant::now() + Duration::from_secs(15);
+        loop {
+            if let Some(st) = self.0.try_wait().unwrap() {
+                return st;
+            }
+            assert!(Instant::now() < deadline, "server did not stop on SIGTERM");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    /// SIGKILL: no shutdown code runs.
+    pub fn kill_hard(mut self) {
+        self.0.kill().unwrap();
+        self.0.wait().unwrap();
+    }
+}
+
+/// Starts `glimpse serve` on `port` with `--data data` and `extra` flags; stderr (the logs)
+/// goes to `log` if given. Waits until `/healthz` answers.
+pub async fn spawn(
+    data: &Path,
+    port: u16,
+    log: Option<&Path>,
+    extra: &[&str],
+    env: &[(&str, &str)],
+    client: &reqwest::Client,
+) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_glimpse"));
+    cmd.args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
+        .arg(data)
+        .args(extra)
+        .env("RUST_LOG", if log.is_some() { "info" } else { "warn" })
+        .env_remove("GLIMPSE_LOG_FORMAT")
+        .env_remove("GLIMPSE_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(match log {
+            Some(p) => Stdio::from(std::fs::File::create(p).unwrap()),
+            None => Stdio::null(),
+        });
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let p = Proc(cmd.spawn().unwrap());
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while client
+        .get(format!("http://127.0.0.1:{port}/healthz"))
+        .send()
+        .await
+        .is_err()
+    {
+        assert!(Instant::now() < deadline, "server did not come up");
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    p
+}
