@@ -42,6 +42,25 @@ fn noisy(img: &LinearImage, amp: f32, seed: u64) -> LinearImage {
     })
 }
 
+/// Process CPU time (user + system, all threads) in ms from /proc/self/stat, NaN where
+/// unavailable. The machine is shared, so wall-clock medians move with other people's
+/// load; CPU time per run is the steadier figure (10 ms tick resolution, summed over runs).
+fn cpu_ms() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    let Some(rest) = stat.rsplit_once(')').map(|r| r.1) else {
+        return f64::NAN;
+    };
+    // Fields after the command name start at field 3 (state); utime and stime are 14, 15.
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (tick(11), tick(12)) {
+        (Some(u), Some(s)) => (u + s) * 10.0, // USER_HZ = 100 on Linux
+        _ => f64::NAN,
+    }
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -86,18 +105,21 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     let model_ms = t.elapsed().as_secs_f64() * 1e3;
     let runs = 11;
     let (mut t_dec, mut t_full, mut t_adapt) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut c_dec, mut c_full, mut c_adapt) = (0.0, 0.0, 0.0);
     let mut full_mean = 0.0;
     let mut adapt = None;
     for i in 0..runs {
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_ms());
         let sa = model.decompose(a).expect("finite");
         let sb = model.decompose(b).expect("finite");
         t_dec.push(t.elapsed().as_secs_f64() * 1e3);
-        let t = Instant::now();
+        c_dec += cpu_ms() - c;
+        let (t, c) = (Instant::now(), cpu_ms());
         let f = metric::full_map(&model, &sa, &sb);
         t_full.push(t.elapsed().as_secs_f64() * 1e3);
+        c_full += cpu_ms() - c;
         full_mean = black_box(f.mean());
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), cpu_ms());
         let m = metric::block_map(
             &model,
             &sa,
@@ -110,6 +132,7 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
             },
         );
         t_adapt.push(t.elapsed().as_secs_f64() * 1e3);
+        c_adapt += cpu_ms() - c;
         adapt = Some(black_box(m));
     }
     let sa = model.decompose(a).expect("finite");
@@ -126,6 +149,13 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     println!(
         "  adaptive block map        {ad:8.2} ms   -> adaptive total   {:8.2} ms",
         dec + ad
+    );
+    let r = f64::from(runs as u32);
+    println!(
+        "  CPU time per run (all threads): decompose both {:.1} ms, full map {:.1} ms, adaptive {:.1} ms",
+        c_dec / r,
+        c_full / r,
+        c_adapt / r
     );
     println!("  speed ratio map only      {:8.2}x", full / ad);
     println!(

@@ -129,7 +129,6 @@ fn a_flat_noisy_field_becomes_final_early_only_with_compensation() {
     let (on, frames) = run(&s, &o, true);
     let (off, _) = run(&s, &o, false);
     let first = frames[0].stats.pixels_traced;
-    eprintln!("DBG {} {:?} {:?}", on.stats.noise_distance_mean, on.stats.t1_used, on.stats.per_iteration);
     assert_eq!(
         on.stats.noise_probe_pixels, first,
         "one twin per first sample"

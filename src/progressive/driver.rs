@@ -9,7 +9,7 @@ use super::classify::{classify, guarded_t1, triangle_distances};
 use super::complex::{contour, rupture_direction, Boundary, ContourPixel, Stamp, FULL_TRACE_BELOW};
 use super::guo;
 use super::mesh::{gouraud, rasterise, Raster, Tri, Triangulator};
-use super::noise::{signal_distance, spans_contour, triangle_noise, Twin, TWIN_SEED};
+use super::noise::{signal_distance, spans_contour, triangle_noise, Twin, NOISE_SCALE, TWIN_SEED};
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -452,29 +452,25 @@ pub fn run<O: PixelOracle>(
                                     .map(|&v| f64::from(v))
                                     .collect();
                                 mean_d = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
-                                // T1's base: the mean of the first map (F&P04 §5); with
-                                // noise compensation, the pixel-weighted mean of the
-                                // triangles' signal distances (super::noise).
-                                let mut t1_base = mean_d;
+                                // Noise compensation (super::noise) changes the
+                                // distances classified, not T1: T1 stays the mean of the
+                                // first raw map (F&P04 §5). A mean of the compensated
+                                // distances is dragged towards 0 by the many triangles
+                                // whose distance is all noise, and then every non-final
+                                // triangle is "complex" (contour traced): measured, a flat
+                                // noisy field was traced at 66 % instead of 10 %.
                                 if let Some(nm) = &noise_map {
                                     let tn = triangle_noise(&raster, nm);
-                                    let (mut sum, mut cnt) = (0.0f64, 0usize);
                                     for (t, (d, dn)) in td.iter_mut().zip(&tn).enumerate() {
                                         // The object-id map is exact: a triangle across an
                                         // object contour keeps F&P04's raw distance.
                                         if !spans_contour(&raster, t, ids.pixels()) {
                                             *d = signal_distance(*d, *dn);
                                         }
-                                        let k = raster.pixels_of(t).len();
-                                        if d.is_finite() {
-                                            sum += *d * k as f64;
-                                            cnt += k;
-                                        }
                                     }
-                                    t1_base = sum / cnt.max(1) as f64;
                                 }
                                 // T1 guarded (§2.9).
-                                let t1v = *t1.get_or_insert_with(|| guarded_t1(t0, t1_base));
+                                let t1v = *t1.get_or_insert_with(|| guarded_t1(t0, mean_d));
                                 classes = td.iter().map(|&d| classify(d, t0, t1v)).collect();
                                 // No NaN in any layer: a NaN distance is "unknown", shown
                                 // as 0 but judged +∞ (never final) by triangle_distances.
@@ -707,7 +703,7 @@ fn step_noise_mean(v: &[f32]) -> f64 {
         .filter(|x| x.is_finite())
         .map(|&x| f64::from(x))
         .sum();
-    s / v.len().max(1) as f64 / std::f64::consts::SQRT_2
+    s / v.len().max(1) as f64 * NOISE_SCALE
 }
 
 /// The interior of a complex triangle (F&P04 §4.2 / spec §4.4): along the rupture

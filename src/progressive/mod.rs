@@ -17,6 +17,14 @@
 //!   with longest edge < 5 px are traced whole.
 //! * [`guo`] — Guo's baseline: Mitchell's contrast test and the least-discrepancy search.
 //! * [`uniform`] — the equal-time uniform baseline.
+//! * [`noise`] — noise-aware classification, an EXTENSION of F&P04 for Monte Carlo
+//!   oracles (F&P04 assumed exact light vectors): a noise twin of the first sample set
+//!   gives a per-pixel map of the distance that noise alone produces; each triangle's
+//!   distance has that noise component removed (Minkowski β = 2.4) before the T0/T1 rules,
+//!   except across object contours. A noise-free oracle (bit-identical twins) keeps F&P04
+//!   exactly; T0 = 0 traces no twin. Off with `RenderOptions::noise_compensation =
+//!   Some(false)`. The twins are in `stats.noise_probe_pixels` and the timings, not in
+//!   `pixels_traced`.
 //!
 //! Choices worth knowing (see the report of issue #4):
 //! * Frame 0 is the Gouraud image of the first sample set; frame 1 adds one sample near

@@ -53,7 +53,7 @@ pub struct RenderStats {
     /// compensation off).
     #[serde(default)]
     pub noise_probe_pixels: u64,
-    /// Mean over the image of the per-step noise distance D_noise/√2 (JND); 0 for a
+    /// Mean over the image of the per-step noise distance `NOISE_SCALE`·D_noise (JND); 0 for a
     /// noise-free oracle or when no twin was traced.
     #[serde(default)]
     pub noise_distance_mean: f64,

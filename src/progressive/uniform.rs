@@ -3,9 +3,12 @@
 //!
 //! "Equal time" here means equal *wall* time on the same machine and thread pool: the
 //! budget is normally the total_ms of the progressive run being compared, and it covers
-//! everything this function does, including its own timing pilot. The spp count is
-//! estimated once, from a pilot pass of 1 sample per pixel on a sparse, evenly spread
-//! subset of pixels (traced in parallel like the real pass), so the final image has one
+//! everything this function does, including its own timing pilot. The first pass's spp is
+//! estimated from a pilot of 1 sample per pixel on a sparse, evenly spread subset of
+//! pixels; a 1-spp pilot over-estimates the per-sample cost (fixed per-pixel and
+//! scheduling costs), so once that pass has run, its measured cost per spp sizes a second
+//! pass (another seed) that fills the budget left. The two passes are averaged weighted by
+//! their spp, which is exactly an estimator with their total spp: the image still has one
 //! uniform spp everywhere (at least 1, even if the budget is smaller than one pass).
 
 use crate::cancel::{CancelToken, Cancelled};
@@ -51,9 +54,30 @@ pub fn render_equal_time(
         let left = budget.saturating_sub(start.elapsed()).as_secs_f64();
         spp_for(left, pass)
     };
-    let img = tracer::render_reference_with(oracle, Some((spp, seed)), cancel, &|_, _| {})?;
+    let t = Instant::now();
+    let mut img = tracer::render_reference_with(oracle, Some((spp, seed)), cancel, &|_, _| {})?;
+    let per_spp = t.elapsed().as_secs_f64() / f64::from(spp);
+    let left = budget.saturating_sub(start.elapsed()).as_secs_f64();
+    // Only when at least one more full sample per pixel fits.
+    if left >= per_spp {
+        let more = spp_for(left, per_spp);
+        let second = tracer::render_reference_with(
+            oracle,
+            Some((more, seed ^ SECOND_PASS_SEED)),
+            cancel,
+            &|_, _| {},
+        )?;
+        let (a, b) = (spp as f32, more as f32);
+        for (p, q) in img.pixels_mut().iter_mut().zip(second.pixels()) {
+            *p = (*p * a + *q * b) / (a + b);
+        }
+        return Ok((img, spp + more));
+    }
     Ok((img, spp))
 }
+
+/// Seed offset of the second pass (independent samples from the first).
+const SECOND_PASS_SEED: u64 = 0x5851_F42D_4C95_7F2D;
 
 /// Samples per pixel that fit `left` seconds at `pass` seconds per 1-spp pass: at least 1,
 /// at most 1 << 20 (the command line's spp limit).

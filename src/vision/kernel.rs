@@ -48,15 +48,47 @@ impl FastGain {
 
     /// G(I) with I clamped ≥ 0 (§2.9). Relative error ≤ ~3e-6 against
     /// [`GainParams::gain`] (tests: `tabulated_gains_match_the_exact_formulas`).
+    /// Scalar entry point (the tests check it against the exact formula).
+    #[cfg_attr(not(test), allow(dead_code))]
     #[inline(always)]
     #[must_use]
     pub fn gain(&self, i: f32) -> f32 {
-        let i = i.max(0.0);
-        let base = exp2(self.neg_exponent * log2((self.scale * (i + self.offset)).max(1e-30)));
         match self.saturation {
-            // I² overflows to +inf above 1.8e19 and the factor goes to 0 smoothly.
-            Some(s) => s / (i * i + s) * base,
-            None => base,
+            Some(s) => self.gain_sat(i, s),
+            None => self.gain_plain(i),
+        }
+    }
+
+    /// The power part alone (cones). Branch-free so lane loops vectorise.
+    #[inline(always)]
+    fn gain_plain(&self, i: f32) -> f32 {
+        let i = i.max(0.0);
+        exp2(self.neg_exponent * log2((self.scale * (i + self.offset)).max(1e-30)))
+    }
+
+    /// With the rod saturation factor s / (I² + s); I² overflows to +inf above 1.8e19 and
+    /// the factor goes to 0 smoothly.
+    #[inline(always)]
+    fn gain_sat(&self, i: f32, s: f32) -> f32 {
+        let i = i.max(0.0);
+        s / (i * i + s) * self.gain_plain(i)
+    }
+
+    /// `out[j] = G(lo[j]) · (g[j] − lo[j])` for 8 lanes (§2.3), the variant chosen outside
+    /// the lane loop so it vectorises.
+    #[inline(always)]
+    fn apply(&self, g: &V8, lo: &V8, out: &mut V8) {
+        match self.saturation {
+            Some(s) => {
+                for j in 0..LANES {
+                    out[j] = self.gain_sat(lo[j], s) * (g[j] - lo[j]);
+                }
+            }
+            None => {
+                for j in 0..LANES {
+                    out[j] = self.gain_plain(lo[j]) * (g[j] - lo[j]);
+                }
+            }
         }
     }
 }
@@ -160,16 +192,31 @@ impl Taps {
     #[inline(always)]
     fn fetch(&self, p: &Plane) -> [V8; 4] {
         let mut out = [[0f32; LANES]; 4];
+        if p.decim == 1 {
+            // Full-resolution level: the sample itself (what `bilinear` returns).
+            for j in 0..LANES {
+                let a: P4 = p.data[self.i00[j]];
+                for k in 0..4 {
+                    out[k][j] = a[k];
+                }
+            }
+            return out;
+        }
         for j in 0..LANES {
             let a: P4 = p.data[self.i00[j]];
             let b: P4 = p.data[self.i01[j]];
             let c: P4 = p.data[self.i10[j]];
             let d: P4 = p.data[self.i11[j]];
             let (fx, fy) = (self.fx[j], self.fy[j]);
+            // The four receptors of one pixel as one 4-lane vector, then scattered to SoA.
+            let mut r = [0f32; 4];
             for k in 0..4 {
                 let top = a[k] + (b[k] - a[k]) * fx;
                 let bot = c[k] + (d[k] - c[k]) * fx;
-                out[k][j] = top + (bot - top) * fy;
+                r[k] = top + (bot - top) * fy;
+            }
+            for k in 0..4 {
+                out[k][j] = r[k];
             }
         }
         out
@@ -219,9 +266,7 @@ impl VisionModel {
                 } else {
                     &self.cone_gain
                 };
-                for j in 0..LANES {
-                    bt[r][j] = gf.gain(lo[r][j]) * (g[r][j] - lo[r][j]);
-                }
+                gf.apply(&g[r], &lo[r], &mut bt[r]);
             }
             for (k, ok) in o.iter_mut().enumerate() {
                 let ch = band.lanes[k];
@@ -258,14 +303,20 @@ impl VisionModel {
                 .iter()
                 .zip(&b.levels)
                 .all(|(p, q)| (p.w, p.h, p.decim) == (q.w, q.h, q.decim));
-        let tb = if same { ta } else { self.taps(b, px, py) };
+        let tb_own;
+        let tb = if same {
+            &ta
+        } else {
+            tb_own = self.taps(b, px, py);
+            &tb_own
+        };
         let mut va = [[[0f32; LANES]; 3]; MAX_BANDS];
         let mut vb = [[[0f32; LANES]; 3]; MAX_BANDS];
         let nb = nb
             .min(a.levels.len().saturating_sub(1))
             .min(b.levels.len().saturating_sub(1));
         self.contrasts8(a, &ta, &mut va);
-        self.contrasts8(b, &tb, &mut vb);
+        self.contrasts8(b, tb, &mut vb);
         let (va, vb) = (&va.as_flattened()[..3 * nb], &vb.as_flattened()[..3 * nb]);
         let mut m = [0f32; LANES];
         for (ca, cb) in va.iter().zip(vb) {

@@ -103,3 +103,162 @@ fn bad_display_parameters_are_sanitised() {
     assert_eq!(m.display().exposure, 1.0);
     assert_eq!(m.display().pixels_per_degree, 28.0);
 }
+
+/// Exact f64 reference of §2.3–§2.7 at one pixel, from the decomposed levels (the pyramid
+/// is shared code; everything after the bilinear lookup uses calib.rs's exact formulas).
+fn exact_contrasts(m: &VisionModel, s: &ContrastStack, x: u32, y: u32) -> Vec<f64> {
+    let c = m.calibration();
+    let lv: Vec<[f64; 4]> = s
+        .levels
+        .iter()
+        .map(|p| bilinear(p, x, y).map(f64::from))
+        .collect();
+    let mut out = Vec::new();
+    for (bi, band) in m.bands().iter().enumerate() {
+        let (g, lo) = (lv[bi], lv[bi + 1]);
+        let bt: [f64; 4] = std::array::from_fn(|r| {
+            let gp = if r == 3 { &c.rod_gain } else { &c.cone_gain };
+            gp.gain(lo[r]) * (g[r] - lo[r])
+        });
+        for k in 0..3 {
+            if band.lanes[k].inv_thresh == 0.0 {
+                out.push(0.0);
+                continue;
+            }
+            let cv: f64 = (0..4).map(|r| c.opponent[k][r] * bt[r]).sum();
+            let w_ref = c.w(k, c.l_ref);
+            let xv = cv.abs() * band.sensitivity[k] / (band.peak_gain * w_ref);
+            out.push(cv.signum() * c.transducer(xv, band.sensitivity[k]));
+        }
+    }
+    out
+}
+
+/// Tiny deterministic xorshift so the test needs no RNG crate state.
+fn rng(seed: &mut u64) -> f32 {
+    *seed ^= *seed << 13;
+    *seed ^= *seed >> 7;
+    *seed ^= *seed << 17;
+    (*seed >> 40) as f32 / (1u64 << 24) as f32
+}
+
+fn random_image(w: u32, h: u32, seed: u64) -> LinearImage {
+    let mut s = seed;
+    Image::from_fn(w, h, |_, _| {
+        let base = rng(&mut s);
+        // Mostly mid-grey texture, some dark and some clipped pixels.
+        crate::raster::Rgb::new(
+            base * 1.2,
+            base * (0.6 + 0.6 * rng(&mut s)),
+            base * rng(&mut s),
+        )
+    })
+}
+
+#[test]
+fn fast_transducer_matches_the_exact_formula() {
+    // kernel::visible against Calibration::transducer for every band/channel of two
+    // displays, x log-uniform over 1e-8 .. 1e8 threshold units (both branches).
+    let c = Calibration::default();
+    let mut seed = 99u64;
+    for ppd in [28.0, 60.0] {
+        let m = VisionModel::new(display(ppd), 512, 512);
+        for band in m.bands() {
+            for k in 0..3 {
+                let ch = band.lanes[k];
+                if ch.inv_thresh == 0.0 {
+                    continue;
+                }
+                for i in 0..2000 {
+                    let x = 10f64.powf(-8.0 + 16.0 * f64::from(rng(&mut seed)));
+                    let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                    let got = f64::from(kernel::visible(x as f32, sign as f32, &ch, &m.transducer));
+                    let want = sign * c.transducer(x, band.sensitivity[k]);
+                    assert!(
+                        (got - want).abs() <= 1e-5 * want.abs(),
+                        "band {} ch {k} x {x}: {got} vs {want}",
+                        band.cpd
+                    );
+                }
+                // Exactly 0 at 0, and T(1) = 1 (threshold is one JND).
+                assert_eq!(kernel::visible(0.0, 0.0, &ch, &m.transducer), 0.0);
+                let t1 = kernel::visible(1.0, 1.0, &ch, &m.transducer);
+                assert!((t1 - 1.0).abs() < 1e-5, "T(1) = {t1}");
+            }
+        }
+    }
+}
+
+#[test]
+fn fast_kernel_matches_the_exact_reference_on_random_images() {
+    let (w, h) = (40, 36);
+    let m = VisionModel::new(display(28.0), w, h);
+    assert!(m.bands().len() >= 2);
+    let c = Calibration::default();
+    let (a, b) = (random_image(w, h, 1), random_image(w, h, 2));
+    let (sa, sb) = (m.decompose(&a).unwrap(), m.decompose(&b).unwrap());
+    let full = m.full_map(&sa, &sb);
+    let mut va = [0f32; 3 * MAX_BANDS];
+    let mut vb = [0f32; 3 * MAX_BANDS];
+    let mut worst = 0f64;
+    for y in 0..h {
+        for x in 0..w {
+            let ea = exact_contrasts(&m, &sa, x, y);
+            let eb = exact_contrasts(&m, &sb, x, y);
+            let n = m.visible_contrasts(&sa, x, y, &mut va);
+            assert_eq!(n, ea.len());
+            m.visible_contrasts(&sb, x, y, &mut vb);
+            for i in 0..n {
+                for (got, want) in [(va[i], ea[i]), (vb[i], eb[i])] {
+                    let err = (f64::from(got) - want).abs();
+                    // 1e-4 JND absolute: tiny chromatic values come from f32 cancellation
+                    // in the opponent sums (e.g. L − 12/11·M), not from the fast powers.
+                    assert!(
+                        err <= 2e-4 * want.abs() + 1e-4,
+                        "({x}, {y}) component {i}: {got} vs {want}"
+                    );
+                }
+            }
+            // §2.7 exact: f64 Minkowski of the exact vectors.
+            let beta = c.minkowski;
+            let s: f64 = ea
+                .iter()
+                .zip(&eb)
+                .map(|(p, q)| (p - q).abs().powf(beta))
+                .sum();
+            let want = s.powf(1.0 / beta);
+            let got = f64::from(*full.get(x, y));
+            let rel = (got - want).abs() / want.max(1e-6);
+            worst = worst.max(rel);
+            assert!(rel <= 5e-4, "d({x}, {y}) = {got} vs exact {want}");
+            // The single-pixel entry point is the same kernel.
+            assert_eq!(m.distance_at(&sa, &sb, x, y), *full.get(x, y));
+        }
+    }
+    assert!(worst > 0.0, "the comparison ran");
+}
+
+#[test]
+fn simd_dispatch_is_bitwise_identical_to_the_portable_path() {
+    let (w, h) = (37, 29);
+    let m = VisionModel::new(display(28.0), w, h);
+    let (sa, sb) = (
+        m.decompose(&random_image(w, h, 5)).unwrap(),
+        m.decompose(&random_image(w, h, 6)).unwrap(),
+    );
+    // Includes out-of-image pixels, which give 0.
+    let pixels: Vec<PixelCoord> = (0..h + 2)
+        .flat_map(|y| (0..w + 1).map(move |x| PixelCoord::new(x, y)))
+        .collect();
+    let mut fast = vec![0f32; pixels.len()];
+    let mut portable = vec![1f32; pixels.len()];
+    m.distances_at(&sa, &sb, &pixels, &mut fast);
+    m.batch_portable(&sa, &sb, &|i| pixels[i], &mut portable);
+    assert_eq!(fast, portable);
+    for (p, d) in pixels.iter().zip(&fast) {
+        if p.x >= w || p.y >= h {
+            assert_eq!(*d, 0.0);
+        }
+    }
+    assert!(fast.iter().any(|&d| d > 0.1));
+}
