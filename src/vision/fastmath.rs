@@ -26,13 +26,13 @@ pub fn log2(x: f32) -> f32 {
 #[inline(always)]
 pub fn exp2(y: f32) -> f32 {
     let yc = y.clamp(-126.0, 127.0);
-    // floor without float→int conversion (whose saturating semantics block SSE code):
-    // adding 1.5·2^23 rounds to an integer, then step down if we rounded up.
+    // Round to the nearest integer without float→int conversion (whose saturating
+    // semantics block SSE code): adding 1.5·2^23 rounds, subtracting it back is exact.
+    // Nearest (not floor) keeps |f| ≤ ½ with no correction step and no √2 factor.
     const ROUND: f32 = 12_582_912.0;
     let r = (yc + ROUND) - ROUND;
-    let r = if r > yc { r - 1.0 } else { r };
-    // 2^f = √2 · e^(g), g = (f − ½) ln 2, |g| ≤ 0.347: degree-6 Taylor, error ≈ 1e-7.
-    let g = (yc - r - 0.5) * std::f32::consts::LN_2;
+    // 2^f = e^(g), g = f ln 2, |g| ≤ 0.347: degree-6 Taylor, error ≈ 1e-7.
+    let g = (yc - r) * std::f32::consts::LN_2;
     let p = 1.0
         + g * (1.0
             + g * (0.5
@@ -40,7 +40,7 @@ pub fn exp2(y: f32) -> f32 {
     // 2^r from bits: r + 2^23 + 127 holds the biased exponent r + 127 ∈ [1, 254] in its low
     // mantissa bits; shifting by 23 moves it into the exponent field.
     let scale = f32::from_bits((r + (8_388_608.0 + 127.0)).to_bits() << 23);
-    let r = p * std::f32::consts::SQRT_2 * scale;
+    let r = p * scale;
     if y < -126.0 {
         0.0
     } else {

@@ -12,6 +12,9 @@
 //! Results are bitwise identical whatever the vector width (only IEEE +, −, ×, ÷, min,
 //! max; no fused multiply-add), so the dispatch cannot change a distance.
 
+// Lane loops index several parallel arrays by lane on purpose (that is what vectorises).
+#![allow(clippy::needless_range_loop)]
+
 use super::calib::GainParams;
 use super::fastmath::{exp2, log2};
 use super::pyramid::{Plane, P4};

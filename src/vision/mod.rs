@@ -11,6 +11,11 @@
 //! transform with rods in A (§2.4), CSF threshold normalisation (§2.5), transducer (§2.6),
 //! then the L^2.4 distance between the two images' vectors (§2.7), in JNDs.
 //!
+//! Speed: the per-pixel part runs in kernel.rs, 8 pixels per call in struct-of-arrays form
+//! (vectorised, AVX2 when available), with fast log2/exp2 powers (fastmath.rs) checked
+//! against calib.rs's exact f64 formulas in tests.rs; decompose reuses its big scratch
+//! planes across calls.
+//!
 //! Degenerate sizes: when the image is too small for any band to pass the size rule of
 //! §2.2 (e.g. 1×1, 2×2 at 28 ppd) the model has N = 0 bands and every distance is exactly 0:
 //! there is no spatial contrast to see at the scales the model knows.
