@@ -9,13 +9,13 @@
 //!
 //! See `ARCHITECTURE.md` for the codemap and the invariants.
 
+pub mod bench;
 pub mod cancel;
-pub mod raster;
-pub mod scene;
-pub mod tracer;
-pub mod vision;
+pub mod cli;
 pub mod metric;
 pub mod progressive;
-pub mod bench;
+pub mod raster;
+pub mod scene;
 pub mod service;
-pub mod cli;
+pub mod tracer;
+pub mod vision;

@@ -8,7 +8,11 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "glimpse", version, about = "Progressive perceptual rendering (Farrugia & Péroche 2004)")]
+#[command(
+    name = "glimpse",
+    version,
+    about = "Progressive perceptual rendering (Farrugia & Péroche 2004)"
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -141,8 +145,16 @@ async fn shutdown_signal() {
 }
 
 fn bench(a: &BenchArgs) -> anyhow::Result<()> {
-    let cfg = crate::bench::BenchConfig { scenes_dir: a.scenes.clone(), out_dir: a.out.clone(), quick: a.quick };
+    let cfg = crate::bench::BenchConfig {
+        scenes_dir: a.scenes.clone(),
+        out_dir: a.out.clone(),
+        quick: a.quick,
+    };
     let results = crate::bench::run(&cfg)?;
-    eprintln!("bench: {} scenes; report in {}", results.len(), a.out.join("report.md").display());
+    eprintln!(
+        "bench: {} scenes; report in {}",
+        results.len(),
+        a.out.join("report.md").display()
+    );
     Ok(())
 }
