@@ -7,7 +7,7 @@
 //! 16 spp, 4.1 at 64 spp); successive frames then differ by visible noise even where the
 //! signal is perfectly interpolated, so no triangle ever becomes final.
 //!
-//! The extension (documented in the report of the noise-aware issue):
+//! The extension (also summarised in README.md, "Where we departed from the specs"):
 //! 1. *Noise twin.* Right after the first sample set is traced, each of its pixels is
 //!    traced a second time with an independent seed ([`TWIN_SEED`]). The two Gouraud
 //!    images on the SAME triangulation differ by noise only; their block map (the same
