@@ -235,23 +235,15 @@ impl Lights {
             } => {
                 let (b1, b2) = uniform_triangle(u);
                 let q = v0 + e1 * b1 + e2 * b2;
-                let (wi, dist) = dir_dist(p, q)?;
-                let cos_l = -n.dot(wi);
-                if !two_sided && cos_l <= 0.0 {
-                    return None;
-                }
-                let pdf = sel * dist * dist / (cos_l.abs() * area);
-                if !(pdf > 0.0) || !pdf.is_finite() {
-                    return None;
-                }
-                Some(LightSample {
-                    wi,
-                    dist,
-                    weight: radiance / pdf,
-                    pdf,
-                    delta: false,
+                let emitter = AreaPoint {
+                    q,
+                    n,
+                    area,
+                    radiance,
+                    two_sided,
                     prim,
-                })
+                };
+                emitter.sample_from(p, sel)
             }
             Emitter::Sphere {
                 prim,
@@ -288,24 +280,15 @@ impl Lights {
                 } else {
                     // Inside (or on): uniform area sampling.
                     let nq = uniform_sphere(u);
-                    let q = center + nq * radius;
-                    let (wi, dist) = dir_dist(p, q)?;
-                    let cos_l = -nq.dot(wi);
-                    if !two_sided && cos_l <= 0.0 {
-                        return None;
-                    }
-                    let pdf = sel * dist * dist / (cos_l.abs() * 4.0 * PI * r2);
-                    if !(pdf > 0.0) || !pdf.is_finite() {
-                        return None;
-                    }
-                    Some(LightSample {
-                        wi,
-                        dist,
-                        weight: radiance / pdf,
-                        pdf,
-                        delta: false,
+                    let emitter = AreaPoint {
+                        q: center + nq * radius,
+                        n: nq,
+                        area: 4.0 * PI * r2,
+                        radiance,
+                        two_sided,
                         prim,
-                    })
+                    };
+                    emitter.sample_from(p, sel)
                 }
             }
             Emitter::Point {
@@ -407,6 +390,41 @@ impl Lights {
             }
             _ => 0.0,
         }
+    }
+}
+
+/// A point drawn uniformly by area on an emitter of total `area`, with normal `n`.
+struct AreaPoint {
+    q: Vec3,
+    n: Vec3,
+    area: f32,
+    radiance: Vec3,
+    two_sided: bool,
+    prim: u32,
+}
+
+impl AreaPoint {
+    /// The sample seen from `p`: the area pdf converted to solid angle
+    /// (pdf_ω = dist² / (|cos θ_l| · area)), times the emitter's selection probability.
+    /// `None` for the back of a one-sided emitter or a degenerate configuration.
+    fn sample_from(&self, p: Vec3, sel: f32) -> Option<LightSample> {
+        let (wi, dist) = dir_dist(p, self.q)?;
+        let cos_l = -self.n.dot(wi);
+        if !self.two_sided && cos_l <= 0.0 {
+            return None;
+        }
+        let pdf = sel * dist * dist / (cos_l.abs() * self.area);
+        if !(pdf > 0.0) || !pdf.is_finite() {
+            return None;
+        }
+        Some(LightSample {
+            wi,
+            dist,
+            weight: self.radiance / pdf,
+            pdf,
+            delta: false,
+            prim: self.prim,
+        })
     }
 }
 
