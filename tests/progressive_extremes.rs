@@ -7,10 +7,8 @@ use glam::Vec3;
 use glimpse::cancel::{CancelToken, Cancelled};
 use glimpse::progressive::{render, ClassCell, Frame, RenderOptions};
 use glimpse::raster::{PixelCoord, Rgb};
-use glimpse::scene::{
-    Camera, Display, ObjectId, ProgressiveSettings, RenderMode, RenderSettings, Scene,
-};
-use glimpse::tracer::{render_reference, PixelOracle};
+use glimpse::scene::{Camera, ObjectId, RenderMode, Scene};
+use glimpse::tracer::{fixtures, render_reference, PixelOracle};
 
 /// A pixel oracle from two closures: colour and object id of pixel (x, y).
 struct Analytic<F, G> {
@@ -53,33 +51,18 @@ fn oracle(
 }
 
 fn scene(w: u32, h: u32, mode: RenderMode) -> Scene {
-    Scene {
-        name: "analytic".into(),
-        width: w,
-        height: h,
-        camera: Camera {
-            position: Vec3::ZERO,
-            look_at: Vec3::Z,
-            up: Vec3::Y,
-            fov_y_deg: 40.0,
-        },
-        display: Display::default(),
-        materials: Vec::new(),
-        material_names: Vec::new(),
-        shapes: Vec::new(),
-        lights: Vec::new(),
-        render: RenderSettings {
-            mode,
-            samples_per_pixel: 1,
-            max_bounces: 1,
-            seed: 7,
-        },
-        progressive: ProgressiveSettings {
-            initial_rate: 0.05,
-            ..ProgressiveSettings::default()
-        },
-        warnings: Vec::new(),
-    }
+    // An empty scene: the analytic oracle, not the tracer, supplies every pixel.
+    let camera = Camera {
+        position: Vec3::ZERO,
+        look_at: Vec3::Z,
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+    };
+    let mut s = fixtures::scene(w, h, camera, Vec::new(), Vec::new(), Vec::new(), (1, 1, 7));
+    s.name = "analytic".into();
+    s.render.mode = mode;
+    s.progressive.initial_rate = 0.05;
+    s
 }
 
 /// A step edge (object 1 right of x = 3w/5, brighter) over a smooth gradient.

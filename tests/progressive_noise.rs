@@ -8,10 +8,8 @@ use glam::Vec3;
 use glimpse::cancel::CancelToken;
 use glimpse::progressive::{render, Frame, RenderOptions, SampleCell};
 use glimpse::raster::{PixelCoord, Rgb};
-use glimpse::scene::{
-    Camera, Display, ObjectId, ProgressiveSettings, RenderMode, RenderSettings, Scene,
-};
-use glimpse::tracer::{render_reference, PixelOracle};
+use glimpse::scene::{Camera, ObjectId, RenderMode, Scene};
+use glimpse::tracer::{fixtures, render_reference, PixelOracle};
 
 const SEED: u64 = 7;
 
@@ -54,33 +52,26 @@ impl<F: Fn(u32, u32) -> Rgb + Sync> PixelOracle for Noisy<F> {
 }
 
 fn scene(w: u32, h: u32) -> Scene {
-    Scene {
-        name: "noisy".into(),
-        width: w,
-        height: h,
-        camera: Camera {
-            position: Vec3::ZERO,
-            look_at: Vec3::Z,
-            up: Vec3::Y,
-            fov_y_deg: 40.0,
-        },
-        display: Display::default(),
-        materials: Vec::new(),
-        material_names: Vec::new(),
-        shapes: Vec::new(),
-        lights: Vec::new(),
-        render: RenderSettings {
-            mode: RenderMode::Progressive,
-            samples_per_pixel: 1,
-            max_bounces: 1,
-            seed: SEED,
-        },
-        progressive: ProgressiveSettings {
-            initial_rate: 0.05,
-            ..ProgressiveSettings::default()
-        },
-        warnings: Vec::new(),
-    }
+    // An empty scene: the analytic oracle, not the tracer, supplies every pixel.
+    let camera = Camera {
+        position: Vec3::ZERO,
+        look_at: Vec3::Z,
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+    };
+    let mut s = fixtures::scene(
+        w,
+        h,
+        camera,
+        Vec::new(),
+        Vec::new(),
+        Vec::new(),
+        (1, 1, SEED),
+    );
+    s.name = "analytic".into();
+    s.render.mode = RenderMode::Progressive;
+    s.progressive.initial_rate = 0.05;
+    s
 }
 
 fn run(s: &Scene, o: &impl PixelOracle, compensation: bool) -> (Frame, Vec<Frame>) {

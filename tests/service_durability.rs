@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{free_port, Proc};
+use common::{free_port, job, submit, wait_state, Proc};
 use serde_json::{json, Value};
 use std::time::{Duration, Instant};
 
@@ -23,16 +23,6 @@ fn scene(w: u32, spp: u32, mode: &str, seed: u64) -> Value {
     })
 }
 
-async fn job(c: &reqwest::Client, base: &str, id: &str) -> Value {
-    c.get(format!("{base}/v1/jobs/{id}"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap()
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_then_restart_loses_no_job() {
     let dir = tempfile::tempdir().unwrap();
@@ -42,22 +32,8 @@ async fn sigkill_then_restart_loses_no_job() {
     let server = spawn(dir.path(), port, &c).await;
 
     // One job finished before the crash.
-    let r = c
-        .post(format!("{base}/v1/jobs"))
-        .json(&scene(16, 1, "reference", 0))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let done_id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while job(&c, &base, &done_id).await["state"] != "succeeded" {
-        assert!(Instant::now() < deadline);
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    let done_id = submit(&c, &base, &scene(16, 1, "reference", 0)).await;
+    wait_state(&c, &base, &done_id, "succeeded", Duration::from_secs(20)).await;
     let png_before = c
         .get(format!("{base}/v1/jobs/{done_id}/frame"))
         .send()
@@ -78,25 +54,9 @@ async fn sigkill_then_restart_loses_no_job() {
     .into_iter()
     .enumerate()
     {
-        let r = c
-            .post(format!("{base}/v1/jobs"))
-            .json(&scene(w, spp, mode, k as u64 + 1))
-            .send()
-            .await
-            .unwrap();
-        assert_eq!(r.status(), 201);
-        ids.push(
-            r.json::<Value>().await.unwrap()["id"]
-                .as_str()
-                .unwrap()
-                .to_owned(),
-        );
+        ids.push(submit(&c, &base, &scene(w, spp, mode, k as u64 + 1)).await);
     }
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while job(&c, &base, &ids[0]).await["state"] != "running" {
-        assert!(Instant::now() < deadline, "the first job never ran");
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
+    wait_state(&c, &base, &ids[0], "running", Duration::from_secs(20)).await;
     server.kill_hard(); // SIGKILL: no shutdown code runs
 
     let server = spawn(dir.path(), port, &c).await;
@@ -161,22 +121,8 @@ async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {
     let c = reqwest::Client::new();
     let server = spawn(dir.path(), port, &c).await;
 
-    let r = c
-        .post(format!("{base}/v1/jobs"))
-        .json(&scene(128, 1024, "reference", 7))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while job(&c, &base, &id).await["state"] != "running" {
-        assert!(Instant::now() < deadline, "the job never ran");
-        tokio::time::sleep(Duration::from_millis(5)).await;
-    }
+    let id = submit(&c, &base, &scene(128, 1024, "reference", 7)).await;
+    wait_state(&c, &base, &id, "running", Duration::from_secs(20)).await;
     let status = server.terminate().await;
     assert!(
         status.success(),

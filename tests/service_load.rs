@@ -11,7 +11,7 @@
 use futures_util::StreamExt;
 mod common;
 
-use common::{free_port, spawn};
+use common::{free_port, spawn, submit};
 use serde_json::{json, Value};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -337,17 +337,7 @@ async fn json_logs_have_one_line_per_job_transition() {
         &client,
     )
     .await;
-    let r = client
-        .post(format!("{base}/v1/jobs"))
-        .json(&scene(7, 2))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let id = r.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
+    let id = submit(&client, &base, &scene(7, 2)).await;
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
         let j: Value = client

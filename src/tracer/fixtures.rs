@@ -100,8 +100,8 @@ pub fn cornell_box(width: u32, height: u32, spp: u32, max_bounces: u32, seed: u6
         mesh(&BACK_WALL_P, &BACK_WALL_I, 0),
         mesh(&RIGHT_WALL_P, &RIGHT_WALL_I, 2),
         mesh(&LEFT_WALL_P, &LEFT_WALL_I, 1),
-        mesh(&SHORT_BOX_P, &SHORT_BOX_I, 0),
-        mesh(&TALL_BOX_P, &TALL_BOX_I, 0),
+        mesh(&SHORT_BOX_P, &BOX_I, 0),
+        mesh(&TALL_BOX_P, &BOX_I, 0),
         mesh(&LIGHT_P, &LIGHT_I, 3),
     ];
     let camera = Camera {
@@ -182,7 +182,8 @@ const SHORT_BOX_P: [[f32; 3]; 24] = [
     [0.124253, 0.0, 0.003105],
     [0.703337, 0.0, 0.176177],
 ];
-const SHORT_BOX_I: [[usize; 3]; 12] = [
+/// Triangle indices of either box (pbrt's vertex order is the same for both).
+const BOX_I: [[usize; 3]; 12] = [
     [0, 2, 1],
     [0, 3, 2],
     [4, 6, 5],
@@ -221,20 +222,6 @@ const TALL_BOX_P: [[f32; 3]; 24] = [
     [-0.146892, 1.2, -0.673479],
     [-0.146892, 0.0, -0.673479],
     [0.049566, 0.0, -0.108948],
-];
-const TALL_BOX_I: [[usize; 3]; 12] = [
-    [0, 2, 1],
-    [0, 3, 2],
-    [4, 6, 5],
-    [4, 7, 6],
-    [8, 10, 9],
-    [8, 11, 10],
-    [12, 14, 13],
-    [12, 15, 14],
-    [16, 18, 17],
-    [16, 19, 18],
-    [20, 22, 21],
-    [20, 23, 22],
 ];
 const LIGHT_P: [[f32; 3]; 4] = [
     [-0.24, 1.98, -0.22],

@@ -84,3 +84,38 @@ pub async fn spawn(
     }
     p
 }
+
+/// `POST /v1/jobs` with `scene`; asserts 201 and returns the job id.
+pub async fn submit(c: &reqwest::Client, base: &str, scene: &serde_json::Value) -> String {
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .json(scene)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201, "submission refused");
+    r.json::<serde_json::Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned()
+}
+
+/// `GET /v1/jobs/{id}` as JSON.
+pub async fn job(c: &reqwest::Client, base: &str, id: &str) -> serde_json::Value {
+    c.get(format!("{base}/v1/jobs/{id}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap()
+}
+
+/// Polls the job until its state is `state`; fails after `within`.
+pub async fn wait_state(c: &reqwest::Client, base: &str, id: &str, state: &str, within: Duration) {
+    let deadline = Instant::now() + within;
+    while job(c, base, id).await["state"] != state {
+        assert!(Instant::now() < deadline, "job {id} never reached {state}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
