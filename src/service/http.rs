@@ -345,16 +345,66 @@ pub fn router(state: AppState) -> Router {
         .route("/metrics", get(metrics))
         .nest("/v1", v1)
         .fallback(not_found)
-        // Limits in one place: the body limit (tower-http rejects early on
-        // Content-Length; axum's own limit covers chunked bodies), then the error mapper
+        // Limits in one place: a declared Content-Length over the limit is refused before
+        // any handler (`refuse_oversized`); axum's own limit covers chunked bodies; then
+        // the error mapper
         // outermost so even layer-made responses leave as JSON.
         .layer(axum::extract::DefaultBodyLimit::max(max_body))
-        .layer(tower_http::limit::RequestBodyLimitLayer::new(max_body))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            refuse_oversized,
+        ))
         .layer(axum::middleware::map_response_with_state(
             state.clone(),
             json_errors,
         ))
         .with_state(state)
+}
+
+/// How much of a declared-oversized body is read and discarded before answering 413.
+const DRAIN_CAP_BYTES: u64 = 64 << 20;
+/// How long that draining may take (a slow client must not hold the task).
+const DRAIN_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Refuses a body whose `Content-Length` exceeds the limit, before any handler runs.
+///
+/// Answering at once and closing while the client is still writing makes the client's
+/// write fail (broken pipe) before it can read the 413 — the error it gets is then a
+/// transport error, not ours. So the rest of the body is read and discarded (bounded in
+/// bytes and time), then the 413 goes out with `Connection: close`, since the connection
+/// is not reusable. Chunked bodies are bounded by axum's `DefaultBodyLimit` while read.
+async fn refuse_oversized(
+    State(st): State<AppState>,
+    req: Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    let Some(len) = declared.filter(|&n| n > st.max_body_bytes as u64) else {
+        return next.run(req).await;
+    };
+    if len <= DRAIN_CAP_BYTES {
+        let mut body = req.into_body().into_data_stream();
+        let drain = async {
+            use futures_util::StreamExt;
+            while let Some(Ok(_)) = body.next().await {}
+        };
+        let _ = tokio::time::timeout(DRAIN_TIMEOUT, drain).await;
+    }
+    let mut res = ApiError::new(
+        ErrorCode::TooLarge,
+        format!(
+            "the request body ({len} bytes) is larger than the limit of {} bytes",
+            st.max_body_bytes
+        ),
+    )
+    .into_response();
+    res.headers_mut()
+        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    res
 }
 
 async fn not_found() -> ApiError {

@@ -135,10 +135,18 @@ pub enum StoreError {
 /// The current time as RFC 3339 UTC (`2026-11-22T10:00:00.123Z`).
 #[must_use]
 pub fn now_rfc3339() -> String {
-    let now = time::OffsetDateTime::now_utc();
-    // Millisecond precision: enough to order events, short enough to read.
-    let now = now.replace_millisecond(now.millisecond()).unwrap_or(now);
-    now.format(&time::format_description::well_known::Rfc3339)
+    rfc3339_millis(time::OffsetDateTime::now_utc())
+}
+
+/// RFC 3339 UTC with exactly three fractional digits. `time`'s `Rfc3339` trims trailing
+/// zeros (`.8Z` vs `.82Z`), which breaks the string order clients (and tests) rely on:
+/// `"…06.8Z" > "…06.82Z"` although 0.80 < 0.82. A fixed width keeps string order = time order.
+fn rfc3339_millis(t: time::OffsetDateTime) -> String {
+    const FMT: &[time::format_description::BorrowedFormatItem<'static>] = time::macros::format_description!(
+        "[year]-[month]-[day]T[hour]:[minute]:[second].[subsecond digits:3]Z"
+    );
+    t.to_offset(time::UtcOffset::UTC)
+        .format(FMT)
         .unwrap_or_default()
 }
 
@@ -386,4 +394,18 @@ pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io:
         std::fs::rename(&tmp, dir.join(name))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn timestamps_have_fixed_width_so_string_order_is_time_order() {
+        let t = time::macros::datetime!(2026-11-25 21:52:06.8 UTC);
+        let u = time::macros::datetime!(2026-11-25 21:52:06.82 UTC);
+        let (a, b) = (super::rfc3339_millis(t), super::rfc3339_millis(u));
+        assert_eq!(a, "2026-11-25T21:52:06.800Z");
+        assert_eq!(b, "2026-11-25T21:52:06.820Z");
+        assert!(a < b);
+        assert_eq!(super::now_rfc3339().len(), a.len());
+    }
 }
