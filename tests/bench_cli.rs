@@ -18,7 +18,7 @@ const TINY: &str = r#"{
     { "type": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6],
       "material": "floor" },
     { "type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "ball" },
-    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [0, 0, 1], "edge_v": [1, 0, 0],
+    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
       "material": "lamp" }
   ],
   "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 3 }

@@ -34,6 +34,72 @@ pub struct RenderArgs {
     /// Override the image size, as WIDTHxHEIGHT.
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Override `progressive.t0` (JND): a triangle whose distance is below it is final.
+    /// Higher is faster and less accurate; 0 traces every pixel (the reference exactly).
+    #[arg(long, value_parser = parse_t0)]
+    pub t0: Option<f32>,
+    /// Progressive and Guo modes: stop after tracing this many pixels, given as a count
+    /// (`20000`) or a share of the image (`30%`). The last frame is the answer so far.
+    #[arg(long, value_parser = parse_pixel_budget)]
+    pub max_pixels: Option<PixelBudget>,
+    /// Progressive and Guo modes: stop after this many seconds (checked between batches of
+    /// pixels; the first sample set is always traced whole).
+    #[arg(long, value_parser = parse_seconds)]
+    pub max_time: Option<std::time::Duration>,
+    /// Progressive mode: classify on the raw frame distances, as F&P04 published them
+    /// (no Monte Carlo noise compensation; see README).
+    #[arg(long)]
+    pub no_noise_compensation: bool,
+}
+
+/// `--max-pixels`: an absolute count or a share of the image's pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PixelBudget {
+    Count(u64),
+    Share(f64),
+}
+
+impl PixelBudget {
+    /// The budget in pixels for a `pixels`-pixel image (a share rounds up: never 0 for a
+    /// positive share).
+    #[must_use]
+    pub fn resolve(self, pixels: u64) -> u64 {
+        match self {
+            Self::Count(n) => n,
+            Self::Share(f) => (f * pixels as f64).ceil() as u64,
+        }
+    }
+}
+
+fn parse_t0(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!(
+            "t0 {s:?} must be a finite number of JNDs, at least 0"
+        )),
+    }
+}
+
+fn parse_pixel_budget(s: &str) -> Result<PixelBudget, String> {
+    if let Some(p) = s.strip_suffix('%') {
+        return match p.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 && v <= 100.0 => Ok(PixelBudget::Share(v / 100.0)),
+            _ => Err(format!("pixel share {s:?} must be in (0%, 100%]")),
+        };
+    }
+    match s.parse::<u64>() {
+        Ok(n) if n > 0 => Ok(PixelBudget::Count(n)),
+        _ => Err(format!(
+            "pixel budget {s:?} must be a positive whole number or a percentage like 30%"
+        )),
+    }
+}
+
+fn parse_seconds(s: &str) -> Result<std::time::Duration, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e7 => Ok(std::time::Duration::from_secs_f64(v)),
+        _ => Err(format!("time {s:?} must be a positive number of seconds")),
+    }
 }
 
 fn parse_mode(s: &str) -> Result<RenderMode, String> {
@@ -82,10 +148,16 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         scene.width = w;
         scene.height = h;
     }
+    if let Some(t0) = a.t0 {
+        scene.progressive.t0 = t0;
+    }
     let tracer = PathTracer::new(&scene);
+    let pixels = u64::from(scene.width) * u64::from(scene.height);
     let opts = RenderOptions {
         mode: a.mode,
-        ..RenderOptions::default()
+        max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
+        max_time: a.max_time,
+        noise_compensation: a.no_noise_compensation.then_some(false),
     };
     let bar = progress_bar();
     let mut on_frame = |f: &progressive::Frame| {

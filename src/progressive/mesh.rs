@@ -7,6 +7,7 @@
 //! iteration ("a complex triangle is of course subdivided during the next iteration").
 
 use crate::raster::{PixelCoord, Rgb};
+use rayon::prelude::*;
 use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
 
 /// A triangulation vertex: one traced pixel.
@@ -174,38 +175,61 @@ impl Raster {
 }
 
 /// Rasterises by bounding box: O(Σ bounding-box areas) ≈ O(pixels), never pixels × triangles.
-/// A pixel centre on a shared edge goes to the first triangle that covers it, so every
-/// covered pixel has exactly one owner.
+/// A pixel centre on a shared edge goes to the lowest-numbered triangle that covers it, so
+/// every covered pixel has exactly one owner, whatever the thread count.
+///
+/// Parallel over horizontal bands (this runs every iteration over the whole image, on
+/// the critical path between two tracing batches): each triangle is listed in the bands
+/// its bounding box meets, and each band visits its triangles in increasing order, which
+/// keeps "lowest-numbered wins".
 #[must_use]
 pub fn rasterise(tris: &[Tri], width: u32, height: u32) -> Raster {
-    let n = width as usize * height as usize;
+    let (w, n) = (width as usize, width as usize * height as usize);
     let mut owner = vec![u32::MAX; n];
-    let mut count = vec![0u32; tris.len() + 1];
-    for (t, tri) in tris.iter().enumerate() {
-        let x0 = tri.v.iter().map(|p| p.x).min().unwrap_or(0);
-        let x1 = tri
-            .v
-            .iter()
-            .map(|p| p.x)
-            .max()
-            .unwrap_or(0)
-            .min(width.saturating_sub(1));
-        let y0 = tri.v.iter().map(|p| p.y).min().unwrap_or(0);
-        let y1 = tri
-            .v
-            .iter()
-            .map(|p| p.y)
-            .max()
-            .unwrap_or(0)
-            .min(height.saturating_sub(1));
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let i = y as usize * width as usize + x as usize;
-                if owner[i] == u32::MAX && tri.barycentric(f64::from(x), f64::from(y)).is_some() {
-                    owner[i] = t as u32;
-                    count[t] += 1;
-                }
+    if n > 0 && !tris.is_empty() {
+        let band_rows = (height as usize)
+            .div_ceil(4 * rayon::current_num_threads())
+            .max(8);
+        let bands = (height as usize).div_ceil(band_rows);
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); bands];
+        for (t, tri) in tris.iter().enumerate() {
+            let y0 = tri.v.iter().map(|p| p.y).min().unwrap_or(0) as usize;
+            let y1 =
+                (tri.v.iter().map(|p| p.y).max().unwrap_or(0) as usize).min(height as usize - 1);
+            if y0 > y1 {
+                continue;
             }
+            for m in &mut members[y0 / band_rows..=y1 / band_rows] {
+                m.push(t as u32);
+            }
+        }
+        owner
+            .par_chunks_mut(band_rows * w)
+            .zip(members.par_iter())
+            .enumerate()
+            .for_each(|(b, (rows, list))| {
+                let (b0, b1) = (b * band_rows, b * band_rows + rows.len() / w);
+                for &t in list {
+                    let tri = &tris[t as usize];
+                    let x0 = tri.v.iter().map(|p| p.x).min().unwrap_or(0);
+                    let x1 = tri.v.iter().map(|p| p.x).max().unwrap_or(0).min(width - 1);
+                    let y0 = (tri.v.iter().map(|p| p.y).min().unwrap_or(0) as usize).max(b0);
+                    let y1 = (tri.v.iter().map(|p| p.y).max().unwrap_or(0) as usize).min(b1 - 1);
+                    for y in y0..=y1 {
+                        for x in x0..=x1 {
+                            let o = &mut rows[(y - b0) * w + x as usize];
+                            if *o == u32::MAX && tri.barycentric(f64::from(x), y as f64).is_some() {
+                                *o = t;
+                            }
+                        }
+                    }
+                }
+            });
+    }
+    let mut count = vec![0u32; tris.len() + 1];
+    for &o in &owner {
+        if o != u32::MAX {
+            count[o as usize] += 1;
         }
     }
     let mut start = vec![0u32; tris.len() + 1];
@@ -231,7 +255,8 @@ pub fn rasterise(tris: &[Tri], width: u32, height: u32) -> Raster {
 
 /// Gouraud shading (F&P04 §4.2): barycentric interpolation of the vertex radiances over
 /// each triangle's untraced pixels; traced pixels keep their traced value. Pixels no
-/// triangle covers take their nearest vertex's value.
+/// triangle covers take their nearest vertex's value. Parallel over rows: every pixel is
+/// computed from its owner triangle alone, so the result does not depend on threads.
 pub fn gouraud(
     tris: &[Tri],
     raster: &Raster,
@@ -241,32 +266,34 @@ pub fn gouraud(
     out: &mut [Rgb],
 ) {
     let w = raster.width as usize;
-    for (t, tr) in tris.iter().enumerate() {
-        let c = tr.v.map(|p| radiance[p.y as usize * w + p.x as usize]);
-        for &i in raster.pixels_of(t) {
-            let i = i as usize;
+    if w == 0 {
+        return;
+    }
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            let i = y * w + x;
+            let t = raster.owner[i];
             if traced[i] {
-                out[i] = radiance[i];
+                *o = radiance[i];
                 continue;
             }
-            let (x, y) = ((i % w) as f64, (i / w) as f64);
-            out[i] = match tr.barycentric(x, y) {
+            let Some(tr) = tris.get(t as usize) else {
+                continue; // uncovered: filled below
+            };
+            let c = tr.v.map(|p| radiance[p.y as usize * w + p.x as usize]);
+            *o = match tr.barycentric(x as f64, y as f64) {
                 Some(b) => c[0] * b[0] as f32 + c[1] * b[1] as f32 + c[2] * b[2] as f32,
                 None => c[0],
             };
         }
-    }
+    });
     for (i, o) in raster.owner.iter().enumerate() {
-        if *o != u32::MAX {
+        if *o != u32::MAX || traced[i] {
             continue;
         }
-        out[i] = if traced[i] {
-            radiance[i]
-        } else {
-            match tri.nearest((i % w) as u32, (i / w) as u32) {
-                Some(p) => radiance[p.y as usize * w + p.x as usize],
-                None => Rgb::ZERO,
-            }
+        out[i] = match tri.nearest((i % w) as u32, (i / w) as u32) {
+            Some(p) => radiance[p.y as usize * w + p.x as usize],
+            None => Rgb::ZERO,
         };
     }
 }
@@ -324,6 +351,36 @@ mod tests {
                 let d = out[(y * w + x) as usize] - f(x, y);
                 assert!(d.abs().max_element() < 1e-4, "({x},{y}) {d:?}");
             }
+        }
+    }
+
+    #[test]
+    fn rasterise_gives_each_pixel_its_lowest_covering_triangle_on_any_thread_count() {
+        let (w, h) = (61u32, 47u32);
+        let mut t = Triangulator::new();
+        t.insert(&corners(w, h));
+        // A scattered, deterministic point set (many shared edges through pixel centres).
+        let pts: Vec<PixelCoord> = (0..150u32)
+            .map(|k| PixelCoord::new((k * 37 + 11) % w, (k * 53 + 7) % h))
+            .collect();
+        t.insert(&pts);
+        let tris = t.triangles();
+        let brute: Vec<u32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (f64::from(i % w), f64::from(i / w));
+                tris.iter()
+                    .position(|tr| tr.barycentric(x, y).is_some())
+                    .map_or(u32::MAX, |p| p as u32)
+            })
+            .collect();
+        for threads in [1, 2, 5] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let r = pool.install(|| rasterise(&tris, w, h));
+            assert_eq!(r.owner, brute, "{threads} threads");
+            assert_eq!(r.order.len(), (w * h) as usize);
         }
     }
 

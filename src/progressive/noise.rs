@@ -30,6 +30,27 @@
 //!    compensated distances is dragged towards 0 by the many all-noise triangles, and then
 //!    every non-final triangle is complex (contour traced): measured on a flat noisy
 //!    64×48 field with the 1/√2 scale, 66 % traced with that T1 vs 52 % with the raw one.
+//! 5. *A complex triangle needs a visible discontinuity.* F&P04's complex class (§4.2:
+//!    trace the contour, interpolate across the rupture) is for discontinuities. With
+//!    noise, many triangles of flat regions pass T1, and tracing their contours (nearly
+//!    every pixel of a 10-px triangle) adds dense noisy samples that make the next frame
+//!    "complex" around them again. A non-contour triangle stays complex only if its three
+//!    vertices pass Mitchell's contrast test (spec §4.3) by more than
+//!    [`CONTRAST_NOISE_MARGIN`] local noise amplitudes ([`visible_discontinuity`],
+//!    amplitudes from the twins, [`NoiseLevel`]); otherwise it is refined at its centre
+//!    like a smooth one. Measured on the five bundled scenes at full size (one run each,
+//!    LDR-FLIP against an independent reference as in `glimpse bench`): pixels traced
+//!    43/45/47/51/36 % → 37/39/42/41/27 % (cellar, Cornell, door, spheres rough/smooth),
+//!    FLIP/noise floor 1.04/0.99/1.02/1.03/1.01 → 1.03/0.99/1.02/1.07/1.01. Demoting
+//!    every non-contour complex triangle instead traced 22–35 % but put spheres-rough at
+//!    1.10× (its texture edges need the contour treatment); Mitchell's test alone, without
+//!    the noise margin, 28–46 %.
+//!
+//! Tried and dropped: a per-step noise twin (the frame noise alone would give at each
+//! step's sampling density, synthesised by giving each new sample the twin difference of
+//! its nearest first sample with a random sign, judged against the previous frame): it
+//! came out below the first twin map almost everywhere and changed the pixel counts by
+//! ±2 points, for one more decomposition and block map per iteration.
 //!
 //! With a noise-free oracle the twins are bit-identical to the first estimates; then no
 //! map is computed, `d_noise ≡ 0` and `d_signal = d` exactly (the formula is bypassed):
@@ -81,6 +102,92 @@ impl<O: PixelOracle> PixelOracle for Twin<'_, O> {
     fn object_id(&self, p: PixelCoord) -> ObjectId {
         self.inner.object_id(p)
     }
+}
+
+/// Per pixel, the Monte Carlo noise amplitude of a traced value as the display shows it:
+/// |first − twin| (displayed, per channel) of the nearest first sample, by a multi-source
+/// breadth-first search over the pixel grid (a discrete Voronoi partition, O(n)). One draw
+/// of the difference of two estimates, i.e. about √2 σ; used as a local noise scale, never
+/// as a value.
+#[derive(Clone, Debug)]
+pub struct NoiseLevel {
+    amp: Vec<Rgb>,
+}
+
+impl NoiseLevel {
+    /// `twins`: (pixel index, |first − twin| displayed) per first sample; `None` if empty.
+    #[must_use]
+    pub fn new(w: usize, h: usize, twins: &[(usize, Rgb)]) -> Option<Self> {
+        let n = w * h;
+        if twins.is_empty() || n == 0 {
+            return None;
+        }
+        let mut amp = vec![Rgb::ZERO; n];
+        let mut seen = vec![false; n];
+        let mut queue = std::collections::VecDeque::with_capacity(n);
+        for &(i, d) in twins {
+            if i < n && !seen[i] {
+                seen[i] = true;
+                amp[i] = d.abs();
+                queue.push_back(i);
+            }
+        }
+        while let Some(i) = queue.pop_front() {
+            let (x, y) = (i % w, i / w);
+            let d = amp[i];
+            let mut visit = |j: usize| {
+                if !seen[j] {
+                    seen[j] = true;
+                    amp[j] = d;
+                    queue.push_back(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < w {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - w);
+            }
+            if y + 1 < h {
+                visit(i + w);
+            }
+        }
+        Some(Self { amp })
+    }
+
+    /// The noise amplitude at pixel `i` (0 outside the image).
+    #[must_use]
+    pub fn at(&self, i: usize) -> Rgb {
+        self.amp.get(i).copied().unwrap_or(Rgb::ZERO)
+    }
+}
+
+/// How many noise amplitudes a vertex contrast must exceed to count as a discontinuity.
+/// The amplitude is one draw of √2 σ, and the largest of the three vertices' is taken; 2
+/// of them is about a 3σ difference between two vertices.
+pub const CONTRAST_NOISE_MARGIN: f32 = 2.0;
+
+/// Whether a triangle's three vertices show a discontinuity beyond noise: they see
+/// different objects, or, in some channel, their displayed values pass Mitchell's contrast
+/// test (spec §4.3, `guo::CONTRAST`) AND differ by more than
+/// [`CONTRAST_NOISE_MARGIN`] × the largest local noise amplitude. `shown`: displayed
+/// values in [0, 1]; `noise`: displayed noise amplitudes ([`NoiseLevel`]).
+#[must_use]
+pub fn visible_discontinuity(shown: [Rgb; 3], ids: [ObjectId; 3], noise: [Rgb; 3]) -> bool {
+    if ids[0] != ids[1] || ids[1] != ids[2] {
+        return true;
+    }
+    let lo = shown[0].min(shown[1]).min(shown[2]);
+    let hi = shown[0].max(shown[1]).max(shown[2]);
+    let amp = noise[0].max(noise[1]).max(noise[2]) * CONTRAST_NOISE_MARGIN;
+    let (lo, hi, amp) = (lo.to_array(), hi.to_array(), amp.to_array());
+    (0..3).any(|k| {
+        let (l, h) = (lo[k], hi[k]);
+        h + l > 0.0 && (h - l) > super::guo::CONTRAST[k] * (h + l) && (h - l) > amp[k]
+    })
 }
 
 /// Per-triangle noise distance of one refinement step: `NOISE_SCALE` × the mean of the
@@ -143,6 +250,41 @@ pub fn signal_distance(d: f64, d_noise: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn noise_level_takes_the_nearest_twin_amplitude() {
+        // Two twins on a 5×1 strip: pixels 0..=1 are nearer the left one, 3..=4 the right.
+        let l = NoiseLevel::new(5, 1, &[(0, Rgb::splat(-0.1)), (4, Rgb::splat(0.3))]).unwrap();
+        assert_eq!(l.at(1), Rgb::splat(0.1), "amplitudes are absolute values");
+        assert_eq!(l.at(3), Rgb::splat(0.3));
+        assert_eq!(l.at(99), Rgb::ZERO, "outside the image: no noise");
+        assert!(NoiseLevel::new(5, 1, &[]).is_none());
+        assert!(NoiseLevel::new(0, 0, &[(0, Rgb::ONE)]).is_none());
+        // 1×1 and out-of-range twins do not panic.
+        let one = NoiseLevel::new(1, 1, &[(7, Rgb::ONE), (0, Rgb::splat(0.5))]).unwrap();
+        assert_eq!(one.at(0), Rgb::splat(0.5));
+    }
+
+    #[test]
+    fn a_discontinuity_must_pass_mitchell_and_exceed_the_noise() {
+        let same = [0u32; 3];
+        let quiet = [Rgb::splat(0.01); 3];
+        // Red 0.2 vs 0.8: contrast 0.6 > 0.4, difference 0.6 > 2 × 0.01.
+        let edge = [
+            Rgb::new(0.2, 0.5, 0.5),
+            Rgb::new(0.8, 0.5, 0.5),
+            Rgb::new(0.8, 0.5, 0.5),
+        ];
+        assert!(visible_discontinuity(edge, same, quiet));
+        // The same contrast inside noise of amplitude 0.4 (2 × 0.4 > 0.6): not visible.
+        assert!(!visible_discontinuity(edge, same, [Rgb::splat(0.4); 3]));
+        // Low contrast (0.45 vs 0.55 → 0.1) is never a discontinuity, however quiet.
+        let soft = [Rgb::splat(0.45), Rgb::splat(0.55), Rgb::splat(0.5)];
+        assert!(!visible_discontinuity(soft, same, [Rgb::ZERO; 3]));
+        // Different objects: always a discontinuity. All black: never.
+        assert!(visible_discontinuity([Rgb::ZERO; 3], [0, 0, 1], quiet));
+        assert!(!visible_discontinuity([Rgb::ZERO; 3], same, [Rgb::ZERO; 3]));
+    }
 
     #[test]
     fn the_noise_component_is_removed_in_the_minkowski_sense() {

@@ -4,6 +4,7 @@
 //! Only [`Scene`] crosses into the tracer; `doc` types never leave this module's parse step.
 
 pub mod doc;
+pub mod duplicates;
 pub mod obj;
 pub mod transform;
 pub mod validate;

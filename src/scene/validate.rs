@@ -155,6 +155,14 @@ fn parse_doc(json: &str) -> Result<SceneDoc, SceneError> {
             ),
         ));
     }
+    // serde_json keeps the last of duplicate keys silently (super::duplicates).
+    if let Some((path, key)) = super::duplicates::first_duplicate_key(json) {
+        return Err(one(
+            SceneErrorKind::InvalidScene,
+            path,
+            format!("duplicate key `{key}`: each key may appear only once in an object"),
+        ));
+    }
     serde_path_to_error::deserialize::<_, SceneDoc>(value).map_err(|e| {
         let outer = e.path().to_string();
         let outer = if outer == "." { String::new() } else { outer };

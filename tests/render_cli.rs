@@ -1,0 +1,228 @@
+//! `glimpse render` end to end (cli.md): outputs, statistics, the speed/accuracy flags
+//! (`--t0`, `--max-pixels`, `--max-time`) and one-line errors.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A small lit scene with a texture edge, a silhouette and a shadow: something to refine.
+const SCENE: &str = r#"{
+  "version": 1, "name": "cli",
+  "image": { "width": 48, "height": 36 },
+  "camera": { "position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov_y": 45 },
+  "materials": {
+    "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
+               "a": [0.8, 0.8, 0.8], "b": [0.1, 0.1, 0.1] } },
+    "ball": { "type": "diffuse", "albedo": [0.7, 0.3, 0.2] },
+    "lamp": { "type": "emissive", "radiance": [8, 8, 8] }
+  },
+  "objects": [
+    { "type": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6],
+      "material": "floor" },
+    { "type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "ball" },
+    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
+      "material": "lamp" }
+  ],
+  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 5 }
+}"#;
+
+const PIXELS: u64 = 48 * 36;
+
+struct Dir {
+    _tmp: tempfile::TempDir,
+    path: PathBuf,
+}
+
+fn setup() -> Dir {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().to_path_buf();
+    std::fs::write(path.join("scene.json"), SCENE).unwrap();
+    Dir { _tmp: tmp, path }
+}
+
+fn glimpse(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(dir)
+        .arg("render")
+        .arg("scene.json")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn stats(dir: &Path, name: &str) -> Value {
+    serde_json::from_slice(&std::fs::read(dir.join(name)).unwrap()).unwrap()
+}
+
+fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "glimpse render failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn every_mode_writes_png_exr_stats_and_layers() {
+    let d = setup();
+    for mode in ["reference", "progressive", "guo"] {
+        let (png, st) = (format!("{mode}.png"), format!("{mode}.json"));
+        let o = glimpse(
+            &d.path,
+            &[
+                "--output", &png, "--mode", mode, "--stats", &st, "--exr", "o.exr", "--layers",
+                "layers",
+            ],
+        );
+        ok(&o);
+        let img = image::open(d.path.join(&png)).unwrap();
+        assert_eq!((img.width(), img.height()), (48, 36));
+        let s = stats(&d.path, &st);
+        for key in [
+            "mode",
+            "width",
+            "height",
+            "iterations",
+            "pixels_traced",
+            "pixel_fraction",
+            "total_ms",
+            "trace_ms",
+            "metric_ms",
+            "triangulate_ms",
+            "final_mean_distance",
+        ] {
+            assert!(s.get(key).is_some(), "{mode}: stats lack {key}: {s}");
+        }
+        assert_eq!(s["mode"], mode);
+        let exr = image::open(d.path.join("o.exr")).unwrap();
+        assert_eq!(exr.width(), 48);
+        assert!(d.path.join("layers/samples.png").exists());
+    }
+}
+
+#[test]
+fn t0_zero_is_the_reference_bit_for_bit() {
+    let d = setup();
+    ok(&glimpse(
+        &d.path,
+        &["--output", "r.png", "--mode", "reference", "--exr", "r.exr"],
+    ));
+    ok(&glimpse(
+        &d.path,
+        &[
+            "--output", "p.png", "--t0", "0", "--exr", "p.exr", "--stats", "p.json",
+        ],
+    ));
+    assert_eq!(
+        std::fs::read(d.path.join("r.exr")).unwrap(),
+        std::fs::read(d.path.join("p.exr")).unwrap(),
+        "progressive with --t0 0 must trace every pixel exactly as the reference"
+    );
+    assert_eq!(stats(&d.path, "p.json")["pixels_traced"], PIXELS);
+}
+
+#[test]
+fn a_higher_t0_traces_fewer_pixels() {
+    let d = setup();
+    let traced = |t0: &str| {
+        let st = format!("t{t0}.json");
+        ok(&glimpse(
+            &d.path,
+            &["--output", "o.png", "--t0", t0, "--stats", &st],
+        ));
+        stats(&d.path, &st)["pixels_traced"].as_u64().unwrap()
+    };
+    let (strict, loose) = (traced("0.25"), traced("8"));
+    assert!(
+        loose < strict && strict <= PIXELS,
+        "t0 8 traced {loose}, t0 0.25 traced {strict}"
+    );
+}
+
+#[test]
+fn pixel_budgets_stop_the_render_as_a_count_or_a_share() {
+    let d = setup();
+    for (flag, budget) in [("50", 50u64), ("10%", PIXELS.div_ceil(10))] {
+        ok(&glimpse(
+            &d.path,
+            &[
+                "--output",
+                "o.png",
+                "--t0",
+                "0",
+                "--max-pixels",
+                flag,
+                "--stats",
+                "s.json",
+            ],
+        ));
+        let s = stats(&d.path, "s.json");
+        assert_eq!(s["pixels_traced"].as_u64(), Some(budget), "{flag}: {s}");
+        assert_eq!(s["stop_reason"], "max_pixels", "{flag}");
+        // The answer so far is still a whole picture.
+        let img = image::open(d.path.join("o.png")).unwrap();
+        assert_eq!(img.width(), 48);
+    }
+}
+
+#[test]
+fn a_time_budget_ends_the_render_early() {
+    let d = setup();
+    ok(&glimpse(
+        &d.path,
+        &[
+            "--output",
+            "o.png",
+            "--t0",
+            "0",
+            "--max-time",
+            "0.000001",
+            "--stats",
+            "s.json",
+        ],
+    ));
+    let s = stats(&d.path, "s.json");
+    assert_eq!(s["stop_reason"], "max_time", "{s}");
+    assert!(s["pixels_traced"].as_u64().unwrap() < PIXELS);
+}
+
+#[test]
+fn bad_flags_and_bad_scenes_are_one_clear_error() {
+    let d = setup();
+    for (args, needle) in [
+        (vec!["--output", "o.png", "--t0=-1"], "t0"),
+        (vec!["--output", "o.png", "--t0", "NaN"], "t0"),
+        (
+            vec!["--output", "o.png", "--max-pixels", "0"],
+            "pixel budget",
+        ),
+        (
+            vec!["--output", "o.png", "--max-pixels", "150%"],
+            "pixel share",
+        ),
+        (vec!["--output", "o.png", "--max-time", "soon"], "time"),
+        (vec!["--output", "o.png", "--mode", "fast"], "unknown mode"),
+    ] {
+        let o = glimpse(&d.path, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} was accepted");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    std::fs::write(
+        d.path.join("scene.json"),
+        SCENE.replace("\"fov_y\": 45", "\"fov_y\": 500"),
+    )
+    .unwrap();
+    let o = glimpse(&d.path, &["--output", "o.png"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("camera.fov_y"),
+        "the error names the field: {err}"
+    );
+    assert!(
+        !d.path.join("o.png").exists(),
+        "no output for a refused scene"
+    );
+}
