@@ -1,14 +1,18 @@
 //! Path tracer throughput on Bitterli's Cornell box (issue #2).
 //!
 //! - `primary_rays/512x512`: one camera ray per pixel, closest hit, on one thread:
-//!   primary rays per second per core = 262144 / time.
+//!   primary rays per second per core = 262144 / time. Camera rays of a scene this small
+//!   test the screen-tile lists of `tracer::primary` (the path tracer's first hit and the
+//!   object-id map use the same); `primary_rays/512x512_bvh` traces the same rays through
+//!   the CWBVH alone, as scenes too large for the lists do.
 //! - `paths/64x64x4spp_depth6`: full paths (NEE + MIS + Russian roulette) on one thread:
 //!   paths per second per core = 16384 / time.
 //! - After criterion, a reference render of 512², 64 spp, max_bounces 6 on all cores
 //!   (rayon), timed three times; the median is printed (Mitsuba 3 comparison:
 //!   scripts/mitsuba_cornell.py).
 //!
-//! Run: `cargo bench --bench tracer`.
+//! Run: `cargo bench --bench tracer` (`-- primary_rays` for that group alone, without the
+//! reference render).
 
 use criterion::{criterion_group, Criterion, Throughput};
 use glimpse::cancel::CancelToken;
@@ -29,6 +33,19 @@ fn primary_rays(c: &mut Criterion) {
             for y in 0..512 {
                 for x in 0..512 {
                     hits += u32::from(t.primary_ray_hits(PixelCoord::new(x, y), 0, 1));
+                }
+            }
+            black_box(hits)
+        });
+    });
+    // The same rays through the BVH alone (what scenes too large for the screen-tile
+    // lists of tracer/primary.rs use), for comparison in the same run.
+    g.bench_function("512x512_bvh", |b| {
+        b.iter(|| {
+            let mut hits = 0u32;
+            for y in 0..512 {
+                for x in 0..512 {
+                    hits += u32::from(t.primary_ray_hits_bvh(PixelCoord::new(x, y), 0, 1));
                 }
             }
             black_box(hits)
@@ -86,5 +103,10 @@ criterion_group!(benches, primary_rays, paths);
 fn main() {
     benches();
     Criterion::default().configure_from_args().final_summary();
-    full_render();
+    // A criterion filter (`cargo bench --bench tracer -- primary_rays`) skips the
+    // 20-second render unless it names it: quick A/B runs of one group.
+    let filter = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    if filter.is_none_or(|f| "reference_render".contains(f.as_str())) {
+        full_render();
+    }
 }

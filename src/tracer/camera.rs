@@ -42,6 +42,41 @@ impl Pinhole {
         }
     }
 
+    /// Where world point `p` lands on the image: (x, y) in pixels as [`Pinhole::direction`]
+    /// numbers them (pixel `(i, j)` spans `[i, i+1) × [j, j+1)`) and its depth along the
+    /// view axis. `None` when the point is not in front of the camera (depth ≤ 0), where
+    /// the projection does not exist. In f64: callers bound screen regions with it
+    /// (tracer::primary) and want its own rounding far below their margins.
+    #[must_use]
+    pub fn project(&self, p: Vec3) -> Option<(f64, f64, f64)> {
+        let d = |a: Vec3, b: Vec3| {
+            f64::from(a.x) * f64::from(b.x)
+                + f64::from(a.y) * f64::from(b.y)
+                + f64::from(a.z) * f64::from(b.z)
+        };
+        let q = p - self.origin;
+        let z = d(q, self.forward);
+        if z.is_nan() || z <= 0.0 {
+            return None;
+        }
+        // `right` and `up` are orthogonal to `forward` and to each other, so q's
+        // coordinates along them give the image coordinates of `direction` directly.
+        let sx = d(q, self.right) / (d(self.right, self.right) * z);
+        let sy = d(q, self.up) / (d(self.up, self.up) * z);
+        let x = (sx + 1.0) * 0.5 / f64::from(self.inv_w);
+        let y = (1.0 - sy) * 0.5 / f64::from(self.inv_h);
+        Some((x, y, z))
+    }
+
+    /// Depth of `p` along the view axis (negative behind the camera).
+    #[must_use]
+    pub fn depth(&self, p: Vec3) -> f64 {
+        let q = p - self.origin;
+        f64::from(q.x) * f64::from(self.forward.x)
+            + f64::from(q.y) * f64::from(self.forward.y)
+            + f64::from(q.z) * f64::from(self.forward.z)
+    }
+
     /// Unit direction through image position (x + jitter.x, y + jitter.y) in pixels.
     #[inline]
     #[must_use]

@@ -39,7 +39,13 @@ impl PathTracer {
         let lights = &self.lights;
         let mut depth = 0u32;
         loop {
-            let Some(hit) = self.geo.intersect(o, dir, f32::INFINITY, skip) else {
+            // The camera ray goes through the screen-tile lists (primary.rs), same hit.
+            let hit = if depth == 0 {
+                self.camera_hit(x, y, dir)
+            } else {
+                self.geo.intersect(o, dir, f32::INFINITY, skip)
+            };
+            let Some(hit) = hit else {
                 if let Some(env) = lights.env_radiance {
                     let w = if prev_delta || lights.env_pmf == 0.0 {
                         1.0

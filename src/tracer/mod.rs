@@ -18,6 +18,7 @@ pub mod fixtures;
 mod integrator;
 pub mod light;
 pub mod material;
+pub mod primary;
 pub mod rng;
 pub mod sampling;
 pub mod texture;
@@ -153,6 +154,8 @@ pub struct PathTracer {
     height: u32,
     pub(crate) camera: camera::Pinhole,
     pub(crate) geo: bvh::Geometry,
+    /// Screen-tile candidate lists for camera rays (small scenes only, tracer/primary.rs).
+    pub(crate) primary: Option<primary::CameraRays>,
     pub(crate) lights: light::Lights,
     pub(crate) materials: Vec<ResolvedMaterial>,
     pub(crate) max_bounces: u32,
@@ -221,11 +224,14 @@ impl PathTracer {
                 .iter()
                 .any(|s| matches!(s, Shape::Sphere { .. })),
         };
+        let camera = camera::Pinhole::new(&scene.camera, scene.width, scene.height);
+        let primary = primary::CameraRays::build(&geo, &camera, scene.width, scene.height);
         Self {
             width: scene.width,
             height: scene.height,
-            camera: camera::Pinhole::new(&scene.camera, scene.width, scene.height),
+            camera,
             geo,
+            primary,
             lights,
             materials,
             max_bounces: scene.render.max_bounces,
@@ -254,10 +260,39 @@ impl PathTracer {
         self.geo.prims.len()
     }
 
+    /// Whether camera rays use the screen-tile lists of tracer/primary.rs (decided at
+    /// preparation by scene size) rather than the BVH.
+    #[must_use]
+    pub fn has_camera_tiles(&self) -> bool {
+        self.primary.is_some()
+    }
+
+    /// Closest hit of the camera ray `d` through pixel (x, y) (jitter inside the pixel):
+    /// the tile lists when the scene has them, else the BVH. Both give the same hit.
+    #[inline]
+    pub(crate) fn camera_hit(&self, x: u32, y: u32, d: Vec3) -> Option<bvh::Hit> {
+        match &self.primary {
+            Some(p) => p.intersect(&self.geo, x, y, d),
+            None => self
+                .geo
+                .intersect(self.camera.origin, d, f32::INFINITY, bvh::NONE),
+        }
+    }
+
     /// Traces one camera ray through a jittered position of pixel `p` and returns whether
-    /// it hit anything: the primary-ray throughput benchmark (benches/tracer.rs).
+    /// it hit anything: the primary-ray throughput benchmark (benches/tracer.rs). The
+    /// same ray generation and first hit as [`PixelOracle::radiance`]'s paths.
     #[must_use]
     pub fn primary_ray_hits(&self, p: PixelCoord, sample: u32, seed: u64) -> bool {
+        let mut rng = rng::Rng::for_sample(seed, p.x, p.y, sample);
+        let d = self.camera.direction(p.x, p.y, rng.next_2d());
+        self.camera_hit(p.x, p.y, d).is_some()
+    }
+
+    /// [`PathTracer::primary_ray_hits`] through the BVH only, for comparing the two
+    /// camera-ray paths (benches/tracer.rs, tests).
+    #[must_use]
+    pub fn primary_ray_hits_bvh(&self, p: PixelCoord, sample: u32, seed: u64) -> bool {
         let mut rng = rng::Rng::for_sample(seed, p.x, p.y, sample);
         let d = self.camera.direction(p.x, p.y, rng.next_2d());
         self.geo
@@ -307,8 +342,8 @@ impl PixelOracle for PathTracer {
 
     fn object_id(&self, p: PixelCoord) -> ObjectId {
         let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
-        self.geo
-            .object_at(self.camera.origin, d)
-            .unwrap_or(BACKGROUND_ID)
+        self.camera_hit(p.x, p.y, d)
+            .and_then(|h| self.geo.info.get(h.prim as usize))
+            .map_or(BACKGROUND_ID, |i| i.object)
     }
 }
