@@ -13,8 +13,9 @@
 //!
 //! Speed: the per-pixel part runs in kernel.rs, 8 pixels per call in struct-of-arrays form
 //! (vectorised, AVX2 when available), with fast log2/exp2 powers (fastmath.rs) checked
-//! against calib.rs's exact f64 formulas in tests.rs; decompose reuses its big scratch
-//! planes across calls.
+//! against calib.rs's exact f64 formulas in tests.rs. Decompose (pyramid.rs) runs whole-row
+//! AVX2 loops with the receptor conversion fused in, and recycles the planes of dropped
+//! stacks (so a model keeps about one stack's worth of buffers alive between calls).
 //!
 //! Degenerate sizes: when the image is too small for any band to pass the size rule of
 //! §2.2 (e.g. 1×1, 2×2 at 28 ppd) the model has N = 0 bands and every distance is exactly 0:
@@ -28,12 +29,13 @@ mod pyramid;
 pub use calib::{Calibration, GainParams};
 
 use crate::raster::{Image, LinearImage, PixelCoord};
-use calib::{DOG_PEAK_TIMES_SIGMA, RGB_TO_LMSR};
+use calib::DOG_PEAK_TIMES_SIGMA;
 #[cfg(test)]
 use fastmath::pow4;
 use kernel::{ChannelConsts, FastGain, TransducerConsts, LANES};
-use pyramid::{bilinear, build_level, LevelSpec, Plane, P4};
+use pyramid::{bilinear, build_level, BufferPool, DisplayConv, LevelSpec, Plane, Source, P4};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Most bands the per-pixel code handles on the stack (the default set has 6).
 pub const MAX_BANDS: usize = 8;
@@ -91,11 +93,9 @@ pub struct VisionModel {
     /// Transducer constants shared by all bands (§2.6).
     transducer: TransducerConsts,
     opp: [[f32; 4]; 3],
-    /// Reused full-size scratch planes of [`Self::decompose`] (receptor image and the
-    /// horizontal-pass intermediate): fresh multi-MB allocations cost page faults, zero
-    /// fills and TLB shoot-downs on free (≈ a fifth of the profile). At most
-    /// [`Self::SCRATCH_KEPT`] buffers are kept.
-    scratch: std::sync::Mutex<Vec<Vec<P4>>>,
+    /// Reused planes of [`Self::decompose`]: the horizontal-pass scratch and the levels
+    /// of dropped [`ContrastStack`]s (pyramid.rs [`BufferPool`]).
+    pool: Arc<BufferPool>,
 }
 
 /// One image's multiscale decomposition (receptor pyramids), ready for per-pixel lookups.
@@ -103,6 +103,18 @@ pub struct ContrastStack {
     width: u32,
     height: u32,
     levels: Vec<Plane>,
+    /// Where the level buffers go back to when the stack is dropped.
+    pool: Option<Arc<BufferPool>>,
+}
+
+impl Drop for ContrastStack {
+    fn drop(&mut self) {
+        if let Some(pool) = &self.pool {
+            for l in self.levels.drain(..) {
+                pool.give(l.data);
+            }
+        }
+    }
 }
 
 impl ContrastStack {
@@ -227,7 +239,7 @@ impl VisionModel {
             levels,
             bands,
             opp,
-            scratch: std::sync::Mutex::new(Vec::new()),
+            pool: Arc::new(BufferPool::default()),
         }
     }
 
@@ -264,6 +276,8 @@ impl VisionModel {
                 b: (img.width(), img.height()),
             });
         }
+        // Sequential on purpose: rayon's `position_first` checks a shared atomic per item
+        // and measured 13× slower than this scan (issue #3).
         if let Some(i) = img.pixels().iter().position(|p| !p.is_finite()) {
             let w = img.width() as usize;
             return Err(VisionError::NonFinite {
@@ -276,64 +290,33 @@ impl VisionModel {
                 width: self.width,
                 height: self.height,
                 levels: Vec::new(),
+                pool: None,
             });
         }
         let d = self.display;
-        let (black, range, expo) = (
-            d.black_luminance,
-            d.peak_luminance - d.black_luminance,
-            d.exposure,
-        );
-        // §2.1: displayed luminance per channel, then receptors, clamped ≥ 0 (a saturated
-        // red has a negative rod signal).
-        let mut data = self.take_scratch();
-        data.resize(img.len(), [0f32; 4]);
-        data.par_chunks_mut(4096)
-            .zip(img.pixels().par_chunks(4096))
-            .for_each(|(out, inp)| {
-                for (o, p) in out.iter_mut().zip(inp) {
-                    let y = [p.x, p.y, p.z].map(|v| black + range * (v * expo).clamp(0.0, 1.0));
-                    for (k, row) in RGB_TO_LMSR.iter().enumerate() {
-                        o[k] = (row[0] * y[0] + row[1] * y[1] + row[2] * y[2]).max(0.0);
-                    }
-                }
-            });
-        let input = Plane {
-            w: self.width,
-            h: self.height,
-            decim: 1,
-            data,
+        let conv = DisplayConv {
+            black: d.black_luminance,
+            range: d.peak_luminance - d.black_luminance,
+            exposure: d.exposure,
         };
-        let mut tmp = self.take_scratch();
-        let levels = build_levels(&input, &self.levels, &mut tmp);
-        self.give_scratch(input.data);
-        self.give_scratch(tmp);
+        // §2.1 (receptor signals) happens inside the first level's horizontal pass.
+        let pool = &self.pool;
+        // The horizontal-pass scratch is largest for the first level (at most W·H).
+        let mut tmp = pool.take(img.len());
+        let levels = build_levels(
+            Source::Display(img, conv),
+            &self.levels,
+            &mut tmp,
+            |n| pool.take(n),
+            true,
+        );
+        pool.give(tmp);
         Ok(ContrastStack {
             width: self.width,
             height: self.height,
             levels,
+            pool: Some(Arc::clone(pool)),
         })
-    }
-
-    const SCRATCH_KEPT: usize = 4;
-
-    fn take_scratch(&self) -> Vec<P4> {
-        let mut v = self
-            .scratch
-            .lock()
-            .ok()
-            .and_then(|mut p| p.pop())
-            .unwrap_or_default();
-        v.clear();
-        v
-    }
-
-    fn give_scratch(&self, v: Vec<P4>) {
-        if let Ok(mut p) = self.scratch.lock() {
-            if p.len() < Self::SCRATCH_KEPT {
-                p.push(v);
-            }
-        }
     }
 
     /// The signed visible contrasts V_{n,k} (§2.6) at (x, y), band-major (A, RG, BY per
@@ -397,12 +380,26 @@ impl VisionModel {
     }
 }
 
-/// The cascade of §2.2 from the receptor image. (An AVX2 build of these loops measured
-/// no faster: they are bound by memory traffic, not arithmetic.)
-fn build_levels(input: &Plane, specs: &[LevelSpec], tmp: &mut Vec<P4>) -> Vec<Plane> {
+/// The cascade of §2.2 from the input (the receptor image for level 0). `simd` selects the
+/// AVX2 row loops when the CPU has them (bitwise-identical results); `buffer(n)` supplies
+/// each level's storage.
+fn build_levels(
+    input: Source,
+    specs: &[LevelSpec],
+    tmp: &mut Vec<P4>,
+    buffer: impl Fn(usize) -> Vec<P4>,
+    simd: bool,
+) -> Vec<Plane> {
     let mut out: Vec<Plane> = Vec::with_capacity(specs.len());
+    let (mut w, mut h) = match input {
+        Source::Plane(p) => (p.w as usize, p.h as usize),
+        Source::Display(img, _) => (img.width() as usize, img.height() as usize),
+    };
     for spec in specs {
-        let next = build_level(out.last().unwrap_or(input), spec, tmp);
+        let step = spec.step as usize;
+        (w, h) = (w.div_ceil(step), h.div_ceil(step));
+        let src = out.last().map_or(input, Source::Plane);
+        let next = build_level(&src, spec, tmp, buffer(w * h), simd);
         out.push(next);
     }
     out
@@ -421,15 +418,18 @@ fn measure_peak_gain(levels: &[LevelSpec], n: usize, freq: f64) -> f64 {
             [v as f32; 4]
         })
         .collect();
+    let input = Plane {
+        w: len,
+        h: 1,
+        decim: 1,
+        data,
+    };
     let planes = build_levels(
-        &Plane {
-            w: len,
-            h: 1,
-            decim: 1,
-            data,
-        },
+        Source::Plane(&input),
         &levels[..(n + 2).min(levels.len())],
         &mut Vec::new(),
+        |_| Vec::new(),
+        true,
     );
     let (Some(g), Some(lo)) = (planes.get(n), planes.get(n + 1)) else {
         return 0.0;

@@ -262,3 +262,29 @@ fn simd_dispatch_is_bitwise_identical_to_the_portable_path() {
     }
     assert!(fast.iter().any(|&d| d > 0.1));
 }
+
+#[test]
+fn recycled_level_buffers_give_identical_stacks() {
+    // Issue #3: dropped stacks hand their planes back to the model, and the next
+    // decomposition overwrites them; stale contents must never leak into a level.
+    let (w, h) = (37, 29);
+    let m = VisionModel::new(display(28.0), w, h);
+    let (a, b) = (random_image(w, h, 11), random_image(w, h, 12));
+    let first = m.decompose(&a).unwrap();
+    let want: Vec<Vec<P4>> = first.levels.iter().map(|l| l.data.clone()).collect();
+    let bytes = first.bytes();
+    drop(first);
+    let other = m.decompose(&b).unwrap();
+    let reused: Vec<*const P4> = other.levels.iter().map(|l| l.data.as_ptr()).collect();
+    drop(other);
+    let again = m.decompose(&a).unwrap();
+    // The buffers did come back from the pool (not fresh allocations)...
+    assert!(again
+        .levels
+        .iter()
+        .any(|l| reused.contains(&l.data.as_ptr())));
+    // ...and the levels are bitwise those of the first decomposition, same sizes.
+    let got: Vec<Vec<P4>> = again.levels.iter().map(|l| l.data.clone()).collect();
+    assert_eq!(got, want);
+    assert_eq!(again.bytes(), bytes);
+}
