@@ -4,25 +4,9 @@
 use serde_json::Value;
 use std::process::Command;
 
-const TINY: &str = r#"{
-  "version": 1, "name": "tiny",
-  "image": { "width": 40, "height": 30 },
-  "camera": { "position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov_y": 45 },
-  "materials": {
-    "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
-               "a": [0.8, 0.8, 0.8], "b": [0.1, 0.1, 0.1] } },
-    "ball": { "type": "diffuse", "albedo": [0.7, 0.3, 0.2] },
-    "lamp": { "type": "emissive", "radiance": [8, 8, 8] }
-  },
-  "objects": [
-    { "type": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6],
-      "material": "floor" },
-    { "type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "ball" },
-    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
-      "material": "lamp" }
-  ],
-  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 3 }
-}"#;
+mod common;
+
+use common::LIT_SCENE as TINY;
 
 #[test]
 fn bench_writes_report_results_and_plot_for_every_method() {

@@ -5,28 +5,11 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// A small lit scene with a texture edge, a silhouette and a shadow: something to refine.
-const SCENE: &str = r#"{
-  "version": 1, "name": "cli",
-  "image": { "width": 48, "height": 36 },
-  "camera": { "position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov_y": 45 },
-  "materials": {
-    "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
-               "a": [0.8, 0.8, 0.8], "b": [0.1, 0.1, 0.1] } },
-    "ball": { "type": "diffuse", "albedo": [0.7, 0.3, 0.2] },
-    "lamp": { "type": "emissive", "radiance": [8, 8, 8] }
-  },
-  "objects": [
-    { "type": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6],
-      "material": "floor" },
-    { "type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "ball" },
-    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
-      "material": "lamp" }
-  ],
-  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 5 }
-}"#;
+mod common;
 
-const PIXELS: u64 = 48 * 36;
+use common::{LIT_SCENE as SCENE, STATS_FIELDS};
+
+const PIXELS: u64 = 40 * 30;
 
 struct Dir {
     _tmp: tempfile::TempDir,
@@ -76,26 +59,14 @@ fn every_mode_writes_png_exr_stats_and_layers() {
         );
         ok(&o);
         let img = image::open(d.path.join(&png)).unwrap();
-        assert_eq!((img.width(), img.height()), (48, 36));
+        assert_eq!((img.width(), img.height()), (40, 30));
         let s = stats(&d.path, &st);
-        for key in [
-            "mode",
-            "width",
-            "height",
-            "iterations",
-            "pixels_traced",
-            "pixel_fraction",
-            "total_ms",
-            "trace_ms",
-            "metric_ms",
-            "triangulate_ms",
-            "final_mean_distance",
-        ] {
+        for key in STATS_FIELDS {
             assert!(s.get(key).is_some(), "{mode}: stats lack {key}: {s}");
         }
         assert_eq!(s["mode"], mode);
         let exr = image::open(d.path.join("o.exr")).unwrap();
-        assert_eq!(exr.width(), 48);
+        assert_eq!(exr.width(), 40);
         assert!(d.path.join("layers/samples.png").exists());
     }
 }
@@ -161,7 +132,7 @@ fn pixel_budgets_stop_the_render_as_a_count_or_a_share() {
         assert_eq!(s["stop_reason"], "max_pixels", "{flag}");
         // The answer so far is still a whole picture.
         let img = image::open(d.path.join("o.png")).unwrap();
-        assert_eq!(img.width(), 48);
+        assert_eq!(img.width(), 40);
     }
 }
 

@@ -2,6 +2,8 @@
 //! (`glimpse::service::run` in this process), a real HTTP client and a real WebSocket
 //! client. Scenes are tiny so each test takes a second or two in the dev profile.
 
+mod common;
+
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{json, Value};
 use std::net::SocketAddr;
@@ -281,19 +283,7 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert_eq!(done["type"], "done", "{texts:?}");
     assert_eq!(done["job"]["state"], "succeeded");
     let stats = &done["job"]["stats"];
-    for k in [
-        "width",
-        "height",
-        "mode",
-        "iterations",
-        "pixels_traced",
-        "pixel_fraction",
-        "total_ms",
-        "trace_ms",
-        "metric_ms",
-        "triangulate_ms",
-        "final_mean_distance",
-    ] {
+    for k in common::STATS_FIELDS {
         assert!(stats.get(k).is_some(), "stats lacks {k}: {stats}");
     }
     assert_eq!(stats["width"], 48);

@@ -929,7 +929,7 @@ mod tests {
             self.radiance_with(p, 1, 0)
         }
         fn radiance_with(&self, p: PixelCoord, _: u32, seed: u64) -> Rgb {
-            let h = (u64::from(p.x) * 0x9E37_79B9 ^ u64::from(p.y) * 0x85EB_CA6B ^ seed)
+            let h = ((u64::from(p.x) * 0x9E37_79B9) ^ (u64::from(p.y) * 0x85EB_CA6B) ^ seed)
                 .wrapping_mul(0xBF58_476D_1CE4_E5B9);
             let n = ((h >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * self.amp;
             let base = if self.step && p.x >= 20 { 0.9 } else { 0.1 };

@@ -1,6 +1,7 @@
 //! Helpers shared by the tests that run the real `glimpse` binary as a server process
 //! (durability, graceful shutdown, load): a free loopback port, the process handle that
-//! kills the server if a test fails, SIGTERM, and start-up that waits for `/healthz`.
+//! kills the server if a test fails, SIGTERM, and start-up that waits for `/healthz`; and
+//! what the command-line tests share: a small lit scene and the statistics fields.
 #![allow(dead_code)] // each test file uses a different subset
 
 use std::path::Path;
@@ -119,3 +120,40 @@ pub async fn wait_state(c: &reqwest::Client, base: &str, id: &str, state: &str, 
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
 }
+
+/// A small lit scene with a texture edge, a silhouette and a shadow (40×30, 4 spp): cheap,
+/// and something for the progressive loop to refine.
+pub const LIT_SCENE: &str = r#"{
+  "version": 1, "name": "tiny",
+  "image": { "width": 40, "height": 30 },
+  "camera": { "position": [0, 1, 4], "look_at": [0, 0.5, 0], "fov_y": 45 },
+  "materials": {
+    "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
+               "a": [0.8, 0.8, 0.8], "b": [0.1, 0.1, 0.1] } },
+    "ball": { "type": "diffuse", "albedo": [0.7, 0.3, 0.2] },
+    "lamp": { "type": "emissive", "radiance": [8, 8, 8] }
+  },
+  "objects": [
+    { "type": "quad", "corner": [-3, 0, 3], "edge_u": [6, 0, 0], "edge_v": [0, 0, -6],
+      "material": "floor" },
+    { "type": "sphere", "center": [0, 0.5, 0], "radius": 0.5, "material": "ball" },
+    { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
+      "material": "lamp" }
+  ],
+  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 3 }
+}"#;
+
+/// The fields every statistics object holds (cli.md; a job's `stats` is the same object).
+pub const STATS_FIELDS: [&str; 11] = [
+    "mode",
+    "width",
+    "height",
+    "iterations",
+    "pixels_traced",
+    "pixel_fraction",
+    "total_ms",
+    "trace_ms",
+    "metric_ms",
+    "triangulate_ms",
+    "final_mean_distance",
+];
