@@ -632,10 +632,13 @@ fn reference_mean() -> Option<[f64; 3]> {
     None
 }
 
-/// The same comparison through the JSON contract: scenes/cornell-box.json parsed by
-/// `scene::parse_scene` (size, spp and bounces overridden to keep the test fast).
+/// The same comparison through the JSON contract, at the issue's 256×256: scenes/cornell-box.json
+/// parsed by `scene::parse_scene`, 64 bounces like Tungsten, 16 spp (the mean of 1 M paths
+/// is far steadier than the tolerance). The issue asks for 3 %; measured 0.05–0.08 %
+/// (64 spp, `scripts/mitsuba_bitterli.py`, where Mitsuba 3 lands within 0.03 %), so the
+/// test holds 1 %, which a real energy bias would break.
 #[test]
-fn cornell_box_json_mean_matches_tungsten_within_3_percent() {
+fn cornell_box_json_mean_matches_tungsten_within_1_percent_at_256() {
     use glimpse::scene::{parse_scene, Limits, SceneOrigin};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let json = std::fs::read_to_string(root.join("scenes/cornell-box.json"))
@@ -645,16 +648,16 @@ fn cornell_box_json_mean_matches_tungsten_within_3_percent() {
     };
     let mut s =
         parse_scene(&json, &origin, &Limits::command_line()).expect("cornell-box.json parses");
-    s.width = 96;
-    s.height = 96;
-    s.render.samples_per_pixel = 64;
+    s.width = 256;
+    s.height = 256;
+    s.render.samples_per_pixel = 16;
     s.render.max_bounces = 64;
     let reference = reference_mean().unwrap_or([0.1963, 0.1275, 0.0361]);
     let m = render(&PathTracer::new(&s)).mean();
     for c in 0..3 {
         let rel = (m[c] - reference[c]).abs() / reference[c];
         assert!(
-            rel < 0.03,
+            rel < 0.01,
             "channel {c}: ours {:.4} vs Tungsten {:.4} ({:.1}%)",
             m[c],
             reference[c],
