@@ -108,37 +108,37 @@ impl<O: PixelOracle> PixelOracle for Twin<'_, O> {
 /// |first − twin| (displayed, per channel) of the nearest first sample, by a multi-source
 /// breadth-first search over the pixel grid (a discrete Voronoi partition, O(n)). One draw
 /// of the difference of two estimates, i.e. about √2 σ; used as a local noise scale, never
-/// as a value.
+/// as a value. Stores the nearest sample's number per pixel (4 bytes), not its amplitude.
 #[derive(Clone, Debug)]
 pub struct NoiseLevel {
+    nearest: Vec<u32>,
     amp: Vec<Rgb>,
 }
 
 impl NoiseLevel {
-    /// `twins`: (pixel index, |first − twin| displayed) per first sample; `None` if empty.
+    /// `twins`: (pixel index, first − twin, displayed) per first sample; `None` if empty.
     #[must_use]
     pub fn new(w: usize, h: usize, twins: &[(usize, Rgb)]) -> Option<Self> {
         let n = w * h;
         if twins.is_empty() || n == 0 {
             return None;
         }
-        let mut amp = vec![Rgb::ZERO; n];
-        let mut seen = vec![false; n];
+        let mut nearest = vec![u32::MAX; n];
+        let mut amp = Vec::with_capacity(twins.len());
         let mut queue = std::collections::VecDeque::with_capacity(n);
         for &(i, d) in twins {
-            if i < n && !seen[i] {
-                seen[i] = true;
-                amp[i] = d.abs();
+            if i < n && nearest[i] == u32::MAX {
+                nearest[i] = amp.len() as u32;
+                amp.push(d.abs());
                 queue.push_back(i);
             }
         }
         while let Some(i) = queue.pop_front() {
             let (x, y) = (i % w, i / w);
-            let d = amp[i];
+            let k = nearest[i];
             let mut visit = |j: usize| {
-                if !seen[j] {
-                    seen[j] = true;
-                    amp[j] = d;
+                if nearest[j] == u32::MAX {
+                    nearest[j] = k;
                     queue.push_back(j);
                 }
             };
@@ -155,13 +155,17 @@ impl NoiseLevel {
                 visit(i + w);
             }
         }
-        Some(Self { amp })
+        (!amp.is_empty()).then_some(Self { nearest, amp })
     }
 
     /// The noise amplitude at pixel `i` (0 outside the image).
     #[must_use]
     pub fn at(&self, i: usize) -> Rgb {
-        self.amp.get(i).copied().unwrap_or(Rgb::ZERO)
+        self.nearest
+            .get(i)
+            .and_then(|&k| self.amp.get(k as usize))
+            .copied()
+            .unwrap_or(Rgb::ZERO)
     }
 }
 
