@@ -776,25 +776,35 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
 }
 
 /// Encodes every layer and the EXR and writes them under `jobs/<id>/`; returns the PNG of
-/// the image layer (reused by the streams).
+/// the image layer (reused by the streams). The encodings are independent and run in
+/// parallel: they sit between the end of the render and the job's `done`.
 fn save_frame(store: &Store, id: Uuid, lf: &LiveFrame) -> Result<Vec<u8>, String> {
-    let mut files = Vec::new();
-    let mut image_png = None;
-    for layer in layers::LAYERS {
-        if let Some(png) = match lf.png.get() {
-            Some(b) if layer == "image" => Some(b.to_vec()),
-            _ => lf.encode_layer_blocking(layer)?,
-        } {
-            if layer == "image" {
-                image_png = Some(png.clone());
-            }
-            files.push((format!("{layer}.png"), png));
-        }
-    }
-    let exr = crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string())?;
-    files.push(("image.exr".to_owned(), exr));
-    store::write_files_blocking(&store.job_dir(id), &files).map_err(|e| e.to_string())?;
-    image_png.ok_or_else(|| "no image layer".to_owned())
+    use rayon::prelude::*;
+    let encoded: Vec<(String, Vec<u8>)> = layers::LAYERS
+        .par_iter()
+        .map(|&layer| Some(layer))
+        .chain(rayon::iter::once(None)) // None: the EXR
+        .map(|layer| -> Result<Option<(String, Vec<u8>)>, String> {
+            let Some(layer) = layer else {
+                let exr = crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string())?;
+                return Ok(Some(("image.exr".to_owned(), exr)));
+            };
+            let png = match lf.png.get() {
+                Some(b) if layer == "image" => Some(b.to_vec()),
+                _ => lf.encode_layer_blocking(layer)?,
+            };
+            Ok(png.map(|p| (format!("{layer}.png"), p)))
+        })
+        .collect::<Result<Vec<_>, String>>()?
+        .into_iter()
+        .flatten()
+        .collect();
+    store::write_files_blocking(&store.job_dir(id), &encoded).map_err(|e| e.to_string())?;
+    encoded
+        .into_iter()
+        .find(|(name, _)| name == "image.png")
+        .map(|(_, png)| png)
+        .ok_or_else(|| "no image layer".to_owned())
 }
 
 #[cfg(test)]
