@@ -172,6 +172,7 @@ fn bad_flags_and_bad_scenes_are_one_clear_error() {
             "pixel share",
         ),
         (vec!["--output", "o.png", "--max-time", "soon"], "time"),
+        (vec!["--output", "o.png", "--max-time", "1e9"], "time"),
         (vec!["--output", "o.png", "--mode", "fast"], "unknown mode"),
     ] {
         let o = glimpse(&d.path, &args);

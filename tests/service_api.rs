@@ -125,29 +125,9 @@ impl Drop for Server {
     }
 }
 
-/// A small valid scene: a diffuse sphere under a point light and a sky.
+/// A small valid scene (common::sphere_scene).
 fn scene(w: u32, h: u32, mode: &str, spp: u32) -> Value {
-    json!({
-        "version": 1, "name": "tiny",
-        "image": { "width": w, "height": h },
-        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
-        "materials": {
-            "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] },
-            "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
-                       "a": [0.9, 0.9, 0.9], "b": [0.1, 0.1, 0.1] } }
-        },
-        "objects": [
-            { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" },
-            { "type": "quad", "corner": [-5, -1, -5], "edge_u": [0, 0, 10], "edge_v": [10, 0, 0],
-              "material": "floor" }
-        ],
-        "lights": [
-            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
-            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
-        ],
-        "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": 1 },
-        "progressive": { "t0": 0.5, "initial_rate": 0.02 }
-    })
+    common::sphere_scene("tiny", w, h, mode, spp, 1)
 }
 
 /// A reference render big enough to keep a worker busy for a while.
@@ -360,15 +340,7 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert_eq!(pngs.len(), 1);
 
     // List: newest first, filters, bad parameters.
-    let l: Value = s
-        .client
-        .get(s.url("/v1/jobs"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l: Value = common::get_json(&s.client, &s.url("/v1/jobs")).await;
     let ids: Vec<&str> = l["jobs"]
         .as_array()
         .unwrap()
@@ -376,26 +348,10 @@ async fn submit_stream_frames_layers_exr_list_delete() {
         .map(|j| j["id"].as_str().unwrap())
         .collect();
     assert_eq!(ids, [id.as_str(), blocker.as_str()]);
-    let l: Value = s
-        .client
-        .get(s.url("/v1/jobs?state=cancelled"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l: Value = common::get_json(&s.client, &s.url("/v1/jobs?state=cancelled")).await;
     assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
     assert_eq!(l["jobs"][0]["id"], blocker.as_str());
-    let l: Value = s
-        .client
-        .get(s.url("/v1/jobs?limit=1"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l: Value = common::get_json(&s.client, &s.url("/v1/jobs?limit=1")).await;
     assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
     for bad in ["state=done", "limit=0", "limit=501", "limit=ten"] {
         let r = s
@@ -737,15 +693,7 @@ async fn bad_scenes_get_their_code_and_path() {
             .status(),
         200
     );
-    let l: Value = s
-        .client
-        .get(s.url("/v1/jobs"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l: Value = common::get_json(&s.client, &s.url("/v1/jobs")).await;
     assert_eq!(
         l["jobs"].as_array().unwrap().len(),
         0,

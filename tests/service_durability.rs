@@ -5,22 +5,11 @@
 mod common;
 
 use common::{free_port, job, submit, wait_state, Proc};
-use serde_json::{json, Value};
+use serde_json::Value;
 use std::time::{Duration, Instant};
 
 fn scene(w: u32, spp: u32, mode: &str, seed: u64) -> Value {
-    json!({
-        "version": 1, "name": format!("job-{seed}"),
-        "image": { "width": w, "height": w },
-        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
-        "materials": { "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] } },
-        "objects": [ { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" } ],
-        "lights": [
-            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
-            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
-        ],
-        "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": seed }
-    })
+    common::sphere_scene(&format!("job-{seed}"), w, w, mode, spp, seed)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -99,14 +88,7 @@ async fn sigkill_then_restart_loses_no_job() {
             .unwrap();
         assert_eq!(r.status(), 200);
     }
-    let l: Value = c
-        .get(format!("{base}/v1/jobs"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let l: Value = common::get_json(&c, &format!("{base}/v1/jobs")).await;
     assert_eq!(l["jobs"].as_array().unwrap().len(), 5);
     drop(server);
 }

@@ -11,7 +11,7 @@
 use futures_util::StreamExt;
 mod common;
 
-use common::{free_port, spawn, submit};
+use common::{free_port, spawn, submit, wait_state};
 use serde_json::{json, Value};
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -32,28 +32,9 @@ const RSS_LIMIT_KIB: u64 = 90 * 1024;
 
 /// A small progressive job (several frames); `seed` varies the noise, `spp` the cost.
 fn scene(seed: u64, spp: u32) -> Value {
-    json!({
-        "version": 1, "name": format!("load-{seed}"),
-        "image": { "width": 32, "height": 32 },
-        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
-        "materials": {
-            "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] },
-            "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
-                       "a": [0.9, 0.9, 0.9], "b": [0.1, 0.1, 0.1] } }
-        },
-        "objects": [
-            { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" },
-            { "type": "quad", "corner": [-5, -1, -5], "edge_u": [0, 0, 10], "edge_v": [10, 0, 0],
-              "material": "floor" }
-        ],
-        "lights": [
-            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
-            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
-        ],
-        "render": { "mode": "progressive", "samples_per_pixel": spp, "max_bounces": 2,
-                    "seed": seed },
-        "progressive": { "t0": 0.5, "initial_rate": 0.05 }
-    })
+    let mut s = common::sphere_scene(&format!("load-{seed}"), 32, 32, "progressive", spp, seed);
+    s["progressive"]["initial_rate"] = json!(0.05);
+    s
 }
 
 /// One field of `/proc/<pid>/status`, in KiB (`VmRSS`, `VmHWM`); `None` once it exited.
@@ -338,22 +319,7 @@ async fn json_logs_have_one_line_per_job_transition() {
     )
     .await;
     let id = submit(&client, &base, &scene(7, 2)).await;
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        let j: Value = client
-            .get(format!("{base}/v1/jobs/{id}"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if j["state"] == "succeeded" {
-            break;
-        }
-        assert!(Instant::now() < deadline, "job never succeeded: {j}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
+    wait_state(&client, &base, &id, "succeeded", Duration::from_secs(30)).await;
     assert!(server.terminate().await.success());
 
     // Every stderr line is one JSON object with a timestamp, a level and a message.

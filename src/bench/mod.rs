@@ -217,20 +217,24 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         )
     };
 
+    // A row for a run of the progressive loop (progressive, uncompensated, Guo).
+    let loop_row = |method: &str, f: &progressive::Frame, ms: f64| -> anyhow::Result<_> {
+        let st = &f.stats;
+        Ok(MethodResult {
+            method: method.into(),
+            ms,
+            time_ratio: ms / reference_ms,
+            pixels_traced: st.pixels_traced,
+            pixel_fraction: st.pixel_fraction,
+            spp: Some(spp),
+            flip: flip(&judge, &f.image, exposure, ppd),
+            glimpse_distance: glimpse_distance(&f.image)?,
+            overhead_share: Some((st.metric_ms + st.triangulate_ms) / st.total_ms.max(1e-9)),
+        })
+    };
+
     let (prog, prog_ms) = run_mode(scene, RenderMode::Progressive, None)?;
-    let overhead =
-        |s: &progressive::RenderStats| (s.metric_ms + s.triangulate_ms) / s.total_ms.max(1e-9);
-    methods.push(MethodResult {
-        method: "progressive".into(),
-        ms: prog_ms,
-        time_ratio: prog_ms / reference_ms,
-        pixels_traced: prog.stats.pixels_traced,
-        pixel_fraction: prog.stats.pixel_fraction,
-        spp: Some(spp),
-        flip: flip(&judge, &prog.image, exposure, ppd),
-        glimpse_distance: glimpse_distance(&prog.image)?,
-        overhead_share: Some(overhead(&prog.stats)),
-    });
+    methods.push(loop_row("progressive", &prog, prog_ms)?);
 
     // What the noise compensation buys: F&P04 exactly as published (exact-oracle assumption).
     let (plain, plain_ms) = run_with(
@@ -241,33 +245,17 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
             ..RenderOptions::default()
         },
     )?;
-    methods.push(MethodResult {
-        method: "progressive, no noise compensation".into(),
-        ms: plain_ms,
-        time_ratio: plain_ms / reference_ms,
-        pixels_traced: plain.stats.pixels_traced,
-        pixel_fraction: plain.stats.pixel_fraction,
-        spp: Some(spp),
-        flip: flip(&judge, &plain.image, exposure, ppd),
-        glimpse_distance: glimpse_distance(&plain.image)?,
-        overhead_share: Some(overhead(&plain.stats)),
-    });
+    methods.push(loop_row(
+        "progressive, no noise compensation",
+        &plain,
+        plain_ms,
+    )?);
 
     // Equal rays: the progressive run's noise twins (traced, but not pixels of the image)
     // count against Guo's budget too.
     let budget = prog.stats.pixels_traced + prog.stats.noise_probe_pixels;
     let (guo, guo_ms) = run_mode(scene, RenderMode::Guo, Some(budget))?;
-    methods.push(MethodResult {
-        method: "guo".into(),
-        ms: guo_ms,
-        time_ratio: guo_ms / reference_ms,
-        pixels_traced: guo.stats.pixels_traced,
-        pixel_fraction: guo.stats.pixel_fraction,
-        spp: Some(spp),
-        flip: flip(&judge, &guo.image, exposure, ppd),
-        glimpse_distance: glimpse_distance(&guo.image)?,
-        overhead_share: Some(overhead(&guo.stats)),
-    });
+    methods.push(loop_row("guo", &guo, guo_ms)?);
 
     let t = Instant::now();
     let (uni, uni_spp) = uniform::render_equal_time(

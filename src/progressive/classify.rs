@@ -7,25 +7,13 @@ use super::TriangleClass;
 /// distance counts as +∞ (never final); a triangle that owns no pixel gets 0.
 #[must_use]
 pub fn triangle_distances(raster: &Raster, map: &[f32]) -> Vec<f64> {
-    let nt = raster.start.len().saturating_sub(1);
-    (0..nt)
-        .map(|t| {
-            let px = raster.pixels_of(t);
-            if px.is_empty() {
-                return 0.0;
-            }
-            let mut s = 0.0f64;
-            for &i in px {
-                let d = map[i as usize];
-                s += if d.is_finite() {
-                    f64::from(d)
-                } else {
-                    f64::INFINITY
-                };
-            }
-            s / px.len() as f64
-        })
-        .collect()
+    raster.triangle_means(map, |d| {
+        if d.is_finite() {
+            f64::from(d)
+        } else {
+            f64::INFINITY
+        }
+    })
 }
 
 /// T1 after the guard of vision-model.md §2.9: never below T0·(1+1e-3), so a zero first

@@ -172,6 +172,23 @@ impl Raster {
     pub fn pixels_of(&self, t: usize) -> &[u32] {
         &self.order[self.start[t] as usize..self.start[t + 1] as usize]
     }
+
+    /// Per triangle, the mean of `value(map[pixel])` over its pixels (f64 accumulation);
+    /// 0 for a triangle that owns no pixel. The per-triangle distances of F&P04 §4.2 and
+    /// the noise distances of super::noise are both such means.
+    #[must_use]
+    pub fn triangle_means(&self, map: &[f32], value: impl Fn(f32) -> f64) -> Vec<f64> {
+        let nt = self.start.len().saturating_sub(1);
+        (0..nt)
+            .map(|t| {
+                let px = self.pixels_of(t);
+                if px.is_empty() {
+                    return 0.0;
+                }
+                px.iter().map(|&i| value(map[i as usize])).sum::<f64>() / px.len() as f64
+            })
+            .collect()
+    }
 }
 
 /// Rasterises by bounding box: O(Σ bounding-box areas) ≈ O(pixels), never pixels × triangles.

@@ -125,35 +125,43 @@ impl NoiseLevel {
         }
         let mut nearest = vec![u32::MAX; n];
         let mut amp = Vec::with_capacity(twins.len());
-        let mut queue = std::collections::VecDeque::with_capacity(n);
+        // Breadth-first, one ring at a time (the same visiting order as a FIFO queue, but
+        // only two rings are held: a queue of every pixel would cost 8 bytes per pixel).
+        let mut ring: Vec<u32> = Vec::with_capacity(twins.len());
         for &(i, d) in twins {
             if i < n && nearest[i] == u32::MAX {
                 nearest[i] = amp.len() as u32;
                 amp.push(d.abs());
-                queue.push_back(i);
+                ring.push(i as u32);
             }
         }
-        while let Some(i) = queue.pop_front() {
-            let (x, y) = (i % w, i / w);
-            let k = nearest[i];
-            let mut visit = |j: usize| {
-                if nearest[j] == u32::MAX {
-                    nearest[j] = k;
-                    queue.push_back(j);
+        let mut next: Vec<u32> = Vec::new();
+        while !ring.is_empty() {
+            for &i in &ring {
+                let i = i as usize;
+                let (x, y) = (i % w, i / w);
+                let k = nearest[i];
+                let mut visit = |j: usize| {
+                    if nearest[j] == u32::MAX {
+                        nearest[j] = k;
+                        next.push(j as u32);
+                    }
+                };
+                if x > 0 {
+                    visit(i - 1);
                 }
-            };
-            if x > 0 {
-                visit(i - 1);
+                if x + 1 < w {
+                    visit(i + 1);
+                }
+                if y > 0 {
+                    visit(i - w);
+                }
+                if y + 1 < h {
+                    visit(i + w);
+                }
             }
-            if x + 1 < w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - w);
-            }
-            if y + 1 < h {
-                visit(i + w);
-            }
+            std::mem::swap(&mut ring, &mut next);
+            next.clear();
         }
         (!amp.is_empty()).then_some(Self { nearest, amp })
     }
@@ -199,27 +207,17 @@ pub fn visible_discontinuity(shown: [Rgb; 3], ids: [ObjectId; 3], noise: [Rgb; 3
 /// compensation, never a reason to become final).
 #[must_use]
 pub fn triangle_noise(raster: &Raster, noise_map: &[f32]) -> Vec<f64> {
-    let nt = raster.start.len().saturating_sub(1);
-    (0..nt)
-        .map(|t| {
-            let px = raster.pixels_of(t);
-            if px.is_empty() {
-                return 0.0;
-            }
-            let s: f64 = px
-                .iter()
-                .map(|&i| {
-                    let v = noise_map[i as usize];
-                    if v.is_finite() {
-                        f64::from(v.max(0.0))
-                    } else {
-                        0.0
-                    }
-                })
-                .sum();
-            s / px.len() as f64 * NOISE_SCALE
-        })
-        .collect()
+    let mut means = raster.triangle_means(noise_map, |v| {
+        if v.is_finite() {
+            f64::from(v.max(0.0))
+        } else {
+            0.0
+        }
+    });
+    for m in &mut means {
+        *m *= NOISE_SCALE;
+    }
+    means
 }
 
 /// True if triangle `t`'s pixels see more than one object (object-id map, one exact ray

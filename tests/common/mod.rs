@@ -1,7 +1,8 @@
 //! Helpers shared by the tests that run the real `glimpse` binary as a server process
 //! (durability, graceful shutdown, load): a free loopback port, the process handle that
-//! kills the server if a test fails, SIGTERM, and start-up that waits for `/healthz`; and
-//! what the command-line tests share: a small lit scene and the statistics fields.
+//! kills the server if a test fails, SIGTERM, and start-up that waits for `/healthz`; the
+//! service tests' scene and JSON reads; and what the command-line tests share: a small lit
+//! scene and the statistics fields.
 #![allow(dead_code)] // each test file uses a different subset
 
 use std::path::Path;
@@ -103,13 +104,45 @@ pub async fn submit(c: &reqwest::Client, base: &str, scene: &serde_json::Value) 
 
 /// `GET /v1/jobs/{id}` as JSON.
 pub async fn job(c: &reqwest::Client, base: &str, id: &str) -> serde_json::Value {
-    c.get(format!("{base}/v1/jobs/{id}"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap()
+    get_json(c, &format!("{base}/v1/jobs/{id}")).await
+}
+
+/// GET `url` and its body as JSON (panics on a transport error or a non-JSON body).
+pub async fn get_json(c: &reqwest::Client, url: &str) -> serde_json::Value {
+    c.get(url).send().await.unwrap().json().await.unwrap()
+}
+
+/// The service tests' scene: a diffuse sphere on a checker floor under a point light and a
+/// sky, `w`×`h` pixels. Cheap at small sizes; `spp` sets the cost of a job.
+pub fn sphere_scene(
+    name: &str,
+    w: u32,
+    h: u32,
+    mode: &str,
+    spp: u32,
+    seed: u64,
+) -> serde_json::Value {
+    serde_json::json!({
+        "version": 1, "name": name,
+        "image": { "width": w, "height": h },
+        "camera": { "position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40 },
+        "materials": {
+            "white": { "type": "diffuse", "albedo": [0.8, 0.8, 0.8] },
+            "floor": { "type": "diffuse", "texture": { "type": "checker", "scale": 0.5,
+                       "a": [0.9, 0.9, 0.9], "b": [0.1, 0.1, 0.1] } }
+        },
+        "objects": [
+            { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" },
+            { "type": "quad", "corner": [-5, -1, -5], "edge_u": [0, 0, 10], "edge_v": [10, 0, 0],
+              "material": "floor" }
+        ],
+        "lights": [
+            { "type": "point", "position": [2, 3, -2], "intensity": [20, 20, 20] },
+            { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
+        ],
+        "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": seed },
+        "progressive": { "t0": 0.5, "initial_rate": 0.02 }
+    })
 }
 
 /// Polls the job until its state is `state`; fails after `within`.
