@@ -8,7 +8,7 @@
 use super::classify::{classify, guarded_t1, triangle_distances};
 use super::complex::{contour, rupture_direction, Boundary, ContourPixel, Stamp, FULL_TRACE_BELOW};
 use super::guo;
-use super::mesh::{gouraud, rasterise, Raster, Tri, Triangulator};
+use super::mesh::{gouraud, rasterise, untextured, Raster, Tri, Triangulator, MIN_ALBEDO};
 use super::noise::{
     signal_distance, spans_contour, triangle_noise, visible_discontinuity, NoiseLevel, Twin,
     NOISE_SCALE, TWIN_SEED,
@@ -179,6 +179,9 @@ struct Run<'a, O: PixelOracle> {
     h: u32,
     n: usize,
     rad: Vec<Rgb>,
+    /// Texture albedo per pixel (textured scenes only): the [`tracer::ALBEDO_TAPS`] mean
+    /// where untraced, the traced estimate's own albedo where traced (mesh.rs `gouraud`).
+    albedo: Option<Vec<Option<Rgb>>>,
     traced: Vec<bool>,
     /// Iteration at which a pixel was traced (u32::MAX: never).
     when: Vec<u32>,
@@ -234,7 +237,16 @@ impl<O: PixelOracle> Run<'_, O> {
                 .iter()
                 .map(|&i| PixelCoord::new((i % w) as u32, (i / w) as u32))
                 .collect();
-            let vals = tracer::trace_pixels(self.oracle, &coords, cancel)?;
+            let vals = match &mut self.albedo {
+                None => tracer::trace_pixels(self.oracle, &coords, cancel)?,
+                Some(albedo) => {
+                    let va = tracer::trace_pixels_albedo(self.oracle, &coords, cancel)?;
+                    for (&i, &(_, a)) in chunk.iter().zip(&va) {
+                        albedo[i] = a;
+                    }
+                    va.into_iter().map(|(v, _)| v).collect()
+                }
+            };
             for (&i, v) in chunk.iter().zip(vals) {
                 self.rad[i] = finite(v);
                 self.traced[i] = true;
@@ -348,6 +360,7 @@ pub fn run<O: PixelOracle>(
         h,
         n,
         rad: vec![Rgb::ZERO; n],
+        albedo: None,
         traced: vec![false; n],
         when: vec![u32::MAX; n],
         traced_count: 0,
@@ -369,6 +382,8 @@ pub fn run<O: PixelOracle>(
     // §4.1: object ids (one primary ray per pixel), contour map, first sample set.
     let t = Instant::now();
     let ids: Image<ObjectId> = tracer::object_id_map(oracle);
+    // Textured scenes only: the texture's detail comes from this map (mesh.rs `gouraud`).
+    r.albedo = tracer::texture_albedo_map(oracle);
     let seeds = initial_samples(&ids, s.initial_rate, s.seed);
     r.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
 
@@ -392,7 +407,15 @@ pub fn run<O: PixelOracle>(
     let mut tris = tri.triangles();
     let mut raster = rasterise(&tris, w, h);
     let mut cur = Image::filled(w, h, Rgb::ZERO);
-    gouraud(&tris, &raster, &r.rad, &r.traced, &tri, cur.pixels_mut());
+    gouraud(
+        &tris,
+        &raster,
+        &r.rad,
+        &r.traced,
+        &tri,
+        r.albedo.as_deref(),
+        cur.pixels_mut(),
+    );
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
 
     // Noise twin of the first sample set (super::noise): perceptual mode only, and only
@@ -494,6 +517,7 @@ pub fn run<O: PixelOracle>(
                                         oc,
                                         &r.rad,
                                         ids.pixels(),
+                                        r.albedo.as_deref(),
                                         nl,
                                         w,
                                         s.exposure,
@@ -649,6 +673,7 @@ pub fn run<O: PixelOracle>(
             &r.rad,
             &r.traced,
             &tri,
+            r.albedo.as_deref(),
             next.pixels_mut(),
         );
         // Complex triangles of this iteration: directional fill from their traced contour.
@@ -661,6 +686,7 @@ pub fn run<O: PixelOracle>(
                 s,
                 &mut stamp,
                 &mut cbuf,
+                r.albedo.as_deref(),
                 next.pixels_mut(),
             );
         }
@@ -695,10 +721,21 @@ fn noise_twin<O: PixelOracle>(
         samples: r.s.samples_per_pixel,
         seed: r.s.seed ^ TWIN_SEED,
     };
-    let vals = tracer::trace_pixels(&twin, first, cancel)?;
+    // The twins' vertex albedos are their own estimates' (other jitter than the firsts').
+    let w = r.w as usize;
+    let mut albedo2 = r.albedo.clone();
+    let vals = match &mut albedo2 {
+        None => tracer::trace_pixels(&twin, first, cancel)?,
+        Some(a2) => {
+            let va = tracer::trace_pixels_albedo(&twin, first, cancel)?;
+            for (p, &(_, a)) in first.iter().zip(&va) {
+                a2[p.y as usize * w + p.x as usize] = a;
+            }
+            va.into_iter().map(|(v, _)| v).collect()
+        }
+    };
     r.it.trace_ms += t.elapsed().as_secs_f64() * 1e3;
     r.stats.noise_probe_pixels += first.len() as u64;
-    let w = r.w as usize;
     let mut rad2 = r.rad.clone();
     let mut same = true;
     let mut amps = Vec::with_capacity(first.len());
@@ -716,7 +753,15 @@ fn noise_twin<O: PixelOracle>(
     let level = NoiseLevel::new(w, r.h as usize, &amps);
     let t = Instant::now();
     let mut twin_img = Image::filled(r.w, r.h, Rgb::ZERO);
-    gouraud(tris, raster, &rad2, &r.traced, tri, twin_img.pixels_mut());
+    gouraud(
+        tris,
+        raster,
+        &rad2,
+        &r.traced,
+        tri,
+        albedo2.as_deref(),
+        twin_img.pixels_mut(),
+    );
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let map = judge.noise_distance(cur, &twin_img, first);
@@ -745,6 +790,7 @@ fn demote_noise_complex(
     on_contour: &[bool],
     rad: &[Rgb],
     ids: &[ObjectId],
+    albedo: Option<&[Option<Rgb>]>,
     noise: &NoiseLevel,
     w: u32,
     exposure: f32,
@@ -755,7 +801,12 @@ fn demote_noise_complex(
             continue;
         }
         let at = tr.v.map(|p| p.y as usize * w + p.x as usize);
-        let shown = at.map(|i| displayed_rgb(rad[i], exposure));
+        // A texture's own contrast is no discontinuity: the albedo map reproduces it.
+        let v = at.map(|i| rad[i]);
+        let v = albedo
+            .and_then(|a| untextured(v, [a[at[0]]?, a[at[1]]?, a[at[2]]?]))
+            .unwrap_or(v);
+        let shown = v.map(|x| displayed_rgb(x, exposure));
         if !visible_discontinuity(shown, at.map(|i| ids[i]), at.map(|i| noise.at(i))) {
             *c = TriangleClass::Smooth;
         }
@@ -784,6 +835,7 @@ fn fill_complex<O: PixelOracle>(
     s: &Settings,
     stamp: &mut Stamp,
     cbuf: &mut Vec<ContourPixel>,
+    albedo: Option<&[Option<Rgb>]>,
     out: &mut [Rgb],
 ) {
     let w = r.w as usize;
@@ -804,14 +856,33 @@ fn fill_complex<O: PixelOracle>(
         }
     };
     let Some(d) = dir else { return };
-    let b = Boundary::new(tr, cbuf, |p| r.rad[idx(p)]);
+    // On a textured surface the fill carries radiance ÷ albedo and multiplies each pixel's
+    // albedo back, like `gouraud`: only when every pixel involved has a usable albedo.
+    let usable = |i: usize| {
+        albedo
+            .and_then(|a| a[i])
+            .filter(|a| a.min_element() >= MIN_ALBEDO)
+    };
+    let textured = albedo.is_some()
+        && cbuf.iter().all(|c| usable(idx(c.p)).is_some())
+        && raster
+            .pixels_of(t)
+            .iter()
+            .all(|&i| r.traced[i as usize] || usable(i as usize).is_some());
+    let b = Boundary::new(tr, cbuf, |p| match usable(idx(p)).filter(|_| textured) {
+        Some(a) => r.rad[idx(p)] / a,
+        None => r.rad[idx(p)],
+    });
     for &i in raster.pixels_of(t) {
         let i = i as usize;
         if r.traced[i] {
             continue;
         }
         if let Some(v) = b.directional(((i % w) as f64, (i / w) as f64), d) {
-            out[i] = v;
+            out[i] = match usable(i).filter(|_| textured) {
+                Some(a) => v * a,
+                None => v,
+            };
         }
     }
 }

@@ -36,6 +36,62 @@ pub trait PixelOracle: Sync {
     /// Id of the object hit by the ray through the pixel centre ([`crate::scene::BACKGROUND_ID`]
     /// on a miss): one ray per pixel, for the contour map of §4.1.
     fn object_id(&self, p: PixelCoord) -> ObjectId;
+    /// The albedo of the textured Lambertian surface the pixel sees, averaged over its
+    /// footprint ([`ALBEDO_TAPS`] camera rays), or `None` where any of those rays sees
+    /// something else (another material, the background). Radiance leaving a Lambertian
+    /// surface is its albedo times irradiance/π, so the progressive renderer interpolates
+    /// radiance ÷ albedo and multiplies each pixel's own albedo back: a texture's detail
+    /// comes from these few primary rays instead of from tracing every pixel of it.
+    fn texture_albedo(&self, _p: PixelCoord) -> Option<Rgb> {
+        None
+    }
+    /// [`PixelOracle::radiance_with`], and the mean albedo the estimate's own camera rays
+    /// (same sub-pixel positions) hit, `None` unless every one sees a textured Lambertian
+    /// surface. A traced pixel is a vertex of the interpolation: dividing its radiance by
+    /// exactly the albedo it averaged (not the [`ALBEDO_TAPS`] approximation of its
+    /// footprint) keeps pixels across a texture edge from spreading a wrong irradiance.
+    fn radiance_albedo_with(&self, p: PixelCoord, samples: u32, seed: u64) -> (Rgb, Option<Rgb>) {
+        (self.radiance_with(p, samples, seed), None)
+    }
+    /// [`PixelOracle::radiance_albedo_with`] with the scene's samples and seed.
+    fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
+        (self.radiance(p), None)
+    }
+    /// Whether any pixel can have a [`PixelOracle::texture_albedo`] (a scene without
+    /// textures builds no map and pays nothing).
+    fn has_textures(&self) -> bool {
+        false
+    }
+}
+
+/// Sub-pixel positions of [`PixelOracle::texture_albedo`]: a 2×2 stratified pattern over
+/// the pixel, the support of the radiance estimate's box filter.
+pub const ALBEDO_TAPS: [glam::Vec2; 4] = [
+    glam::Vec2::new(0.25, 0.25),
+    glam::Vec2::new(0.75, 0.25),
+    glam::Vec2::new(0.25, 0.75),
+    glam::Vec2::new(0.75, 0.75),
+];
+
+/// [`PixelOracle::texture_albedo`] of every pixel (row-major, in parallel), or `None` when
+/// the oracle has no texture.
+#[must_use]
+pub fn texture_albedo_map(oracle: &impl PixelOracle) -> Option<Vec<Option<Rgb>>> {
+    if !oracle.has_textures() {
+        return None;
+    }
+    let (w, h) = oracle.size();
+    Some(
+        (0..w as usize * h as usize)
+            .into_par_iter()
+            .map(|i| {
+                oracle.texture_albedo(PixelCoord::new(
+                    (i % w as usize) as u32,
+                    (i / w as usize) as u32,
+                ))
+            })
+            .collect(),
+    )
 }
 
 /// Pixels are traced in batches of this many; cancellation is checked between batches.
@@ -48,7 +104,25 @@ pub fn trace_pixels(
     pixels: &[PixelCoord],
     cancel: &CancelToken,
 ) -> Result<Vec<Rgb>, Cancelled> {
-    let mut out = vec![Rgb::ZERO; pixels.len()];
+    per_pixel(pixels, cancel, |p| oracle.radiance(p))
+}
+
+/// [`trace_pixels`] with [`PixelOracle::radiance_and_albedo`].
+pub fn trace_pixels_albedo(
+    oracle: &impl PixelOracle,
+    pixels: &[PixelCoord],
+    cancel: &CancelToken,
+) -> Result<Vec<(Rgb, Option<Rgb>)>, Cancelled> {
+    per_pixel(pixels, cancel, |p| oracle.radiance_and_albedo(p))
+}
+
+/// `f` over `pixels` in parallel batches of [`BATCH`], checking `cancel` between them.
+fn per_pixel<T: Send + Clone + Default>(
+    pixels: &[PixelCoord],
+    cancel: &CancelToken,
+    f: impl Fn(PixelCoord) -> T + Sync,
+) -> Result<Vec<T>, Cancelled> {
+    let mut out = vec![T::default(); pixels.len()];
     out.par_chunks_mut(BATCH)
         .zip(pixels.par_chunks(BATCH))
         .try_for_each(|(o, p)| {
@@ -56,7 +130,7 @@ pub fn trace_pixels(
                 return Err(Cancelled);
             }
             for (dst, &px) in o.iter_mut().zip(p) {
-                *dst = oracle.radiance(px);
+                *dst = f(px);
             }
             Ok(())
         })?;
@@ -301,6 +375,20 @@ impl PathTracer {
     }
 }
 
+impl PathTracer {
+    /// The albedo of the textured Lambertian surface the camera ray through `jitter` of
+    /// pixel `p` hits; `None` for any other material or a miss.
+    fn albedo_at(&self, p: PixelCoord, jitter: glam::Vec2) -> Option<Vec3> {
+        let d = self.camera.direction(p.x, p.y, jitter);
+        let hit = self.camera_hit(p.x, p.y, d)?;
+        let s = self.geo.surface(self.camera.origin, d, &hit);
+        match self.materials.get(s.info.material as usize)? {
+            ResolvedMaterial::Textured(t) => Some(texture::eval(t, s.p)),
+            ResolvedMaterial::Fixed(_) => None,
+        }
+    }
+}
+
 impl PixelOracle for PathTracer {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
@@ -340,10 +428,168 @@ impl PixelOracle for PathTracer {
         }
     }
 
+    fn has_textures(&self) -> bool {
+        self.features.has_texture
+    }
+
+    fn texture_albedo(&self, p: PixelCoord) -> Option<Rgb> {
+        if !self.features.has_texture {
+            return None;
+        }
+        let mut sum = Vec3::ZERO;
+        for j in ALBEDO_TAPS {
+            sum += self.albedo_at(p, j)?;
+        }
+        Some(sum / ALBEDO_TAPS.len() as f32)
+    }
+
+    fn radiance_albedo_with(&self, p: PixelCoord, samples: u32, seed: u64) -> (Rgb, Option<Rgb>) {
+        let radiance = self.radiance_with(p, samples, seed);
+        if !self.features.has_texture || samples == 0 {
+            return (radiance, None);
+        }
+        // The same jitter as each path's camera ray (its first 2-D draw), so the albedo
+        // averages exactly the footprint the radiance does.
+        let mut sum = Some(Vec3::ZERO);
+        for i in 0..samples {
+            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
+            let j = rng.next_2d();
+            sum = sum.and_then(|s| Some(s + self.albedo_at(p, j)?));
+        }
+        (radiance, sum.map(|s| s / samples as f32))
+    }
+
+    fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
+        self.radiance_albedo_with(p, self.samples_per_pixel, self.seed)
+    }
+
     fn object_id(&self, p: PixelCoord) -> ObjectId {
         let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
         self.camera_hit(p.x, p.y, d)
             .and_then(|h| self.geo.info.get(h.prim as usize))
             .map_or(BACKGROUND_ID, |i| i.object)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Camera, Light};
+
+    /// A checkered floor (squares of 0.6, albedo 0.8 / 0.2) seen from straight above, lit by
+    /// a vertical directional light, with a plain diffuse sphere on it; direct light only,
+    /// so every estimate is exact.
+    fn checker_floor(textured: bool) -> Scene {
+        let (a, b) = (Vec3::splat(0.8), Vec3::splat(0.2));
+        let floor = if textured {
+            Texture::Checker { scale: 0.6, a, b }
+        } else {
+            Texture::Constant(a)
+        };
+        fixtures::scene(
+            32,
+            32,
+            Camera {
+                position: Vec3::new(0.0, 3.0, 0.0),
+                look_at: Vec3::ZERO,
+                up: Vec3::NEG_Z,
+                fov_y_deg: 60.0,
+            },
+            vec![
+                Material::Diffuse { albedo: floor },
+                Material::Diffuse {
+                    albedo: Texture::Constant(Vec3::splat(0.5)),
+                },
+            ],
+            vec![
+                fixtures::quad(
+                    Vec3::new(-4.0, 0.0, 4.0),
+                    Vec3::new(8.0, 0.0, 0.0),
+                    Vec3::new(0.0, 0.0, -8.0),
+                    0,
+                ),
+                Shape::Sphere {
+                    center: Vec3::new(1.2, 0.3, 1.2),
+                    radius: 0.3,
+                    material: 1,
+                },
+            ],
+            vec![Light::Directional {
+                direction: Vec3::NEG_Y,
+                irradiance: Vec3::ONE,
+            }],
+            (2, 1, 5),
+        )
+    }
+
+    #[test]
+    fn texture_albedo_is_the_footprint_mean_on_textured_lambertian_surfaces_only() {
+        let t = PathTracer::new(&checker_floor(true));
+        assert!(t.has_textures());
+        let map = texture_albedo_map(&t).expect("a textured scene has a map");
+        assert_eq!(map.len(), 32 * 32);
+        let floor_id = t.object_id(PixelCoord::new(0, 0));
+        let (mut inside, mut edge, mut none) = (0, 0, 0);
+        for (i, a) in map.iter().enumerate() {
+            let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
+            // The plain sphere is not textured (nor is a pixel partly on it).
+            if t.object_id(p) != floor_id {
+                assert_eq!(*a, None, "{p:?}");
+            }
+            match a {
+                None => none += 1,
+                Some(a) => {
+                    let v = a.x;
+                    assert!(a.y == v && a.z == v, "grey texture: {a:?}");
+                    if v == 0.8 || v == 0.2 {
+                        inside += 1;
+                    } else {
+                        // A pixel across a checker edge: a mean of the 4 taps.
+                        let taps = (v - 0.2) / 0.6 * 4.0;
+                        assert!((taps - taps.round()).abs() < 1e-4, "{v}");
+                        edge += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            inside > 600 && edge > 50 && none > 10,
+            "{inside} {edge} {none}"
+        );
+        // L = albedo × E/π: radiance ÷ albedo is the same on both colours of the checker
+        // (away from edges, where the radiance's jittered samples can cross to the other
+        // colour; left half, away from the sphere's shadow).
+        let e = |i: usize| {
+            let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
+            t.radiance(p).x / map[i].unwrap().x
+        };
+        let whole: Vec<usize> = (32..map.len() - 32)
+            .filter(|&i| (1..15).contains(&(i % 32)))
+            .filter(|&i| {
+                let a = map[i];
+                a.is_some_and(|a| a.x == 0.8 || a.x == 0.2)
+                    && [i - 33, i - 32, i - 31, i - 1, i + 1, i + 31, i + 32, i + 33]
+                        .iter()
+                        .all(|&j| map[j] == a)
+            })
+            .collect();
+        assert!(
+            whole.iter().any(|&i| map[i].unwrap().x == 0.8)
+                && whole.iter().any(|&i| map[i].unwrap().x == 0.2)
+        );
+        let e0 = e(whole[0]);
+        assert!(e0 > 0.0);
+        for &i in &whole {
+            assert!(
+                (e(i) - e0).abs() <= 1e-4 * e0,
+                "pixel {i}: {} vs {e0}",
+                e(i)
+            );
+        }
+        // A scene without texture builds no map.
+        let plain = PathTracer::new(&checker_floor(false));
+        assert!(!plain.has_textures());
+        assert!(texture_albedo_map(&plain).is_none());
+        assert_eq!(plain.texture_albedo(PixelCoord::new(3, 3)), None);
     }
 }
