@@ -661,11 +661,43 @@ pub fn run<O: PixelOracle>(
 
         // 5. Trace, re-triangulate, shade.
         let next_iter = iter + 1;
-        let new = r.trace(&work, next_iter, cancel)?;
-        let t = Instant::now();
-        tri.insert(&new);
-        let new_tris = tri.triangles();
-        let new_raster = rasterise(&new_tris, w, h);
+        // The triangulation depends on the new samples' positions, not their values: when
+        // no budget can cut the trace short (every queued pixel will be traced), insert
+        // them and rasterise on another thread while they are traced. Spade's insertion is
+        // serial; overlapped, it costs the trace about half its time instead of all of it.
+        // The result is the same triangulation (same points, same insertion order).
+        let overlap = s.max_pixels.is_none() && s.max_time.is_none();
+        let (new_tris, new_raster, t) = if overlap {
+            let coords: Vec<PixelCoord> = work
+                .iter()
+                .map(|&i| PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32))
+                .collect();
+            let tri_ref = &mut tri;
+            let (traced, mesh) = std::thread::scope(|sc| {
+                let side = sc.spawn(move || {
+                    tri_ref.insert(&coords);
+                    let nt = tri_ref.triangles();
+                    let nr = rasterise(&nt, w, h);
+                    (nt, nr)
+                });
+                let traced = r.trace(&work, next_iter, cancel);
+                (traced, side.join())
+            });
+            traced?;
+            // Only the time the loop waits for the mesh after tracing counts as
+            // triangulation (the rest ran beside the trace).
+            let t = Instant::now();
+            // A panic there is the same bug as one inline: hand it on unchanged.
+            let (nt, nr) = mesh.unwrap_or_else(|e| std::panic::resume_unwind(e));
+            (nt, nr, t)
+        } else {
+            let new = r.trace(&work, next_iter, cancel)?;
+            let t = Instant::now();
+            tri.insert(&new);
+            let nt = tri.triangles();
+            let nr = rasterise(&nt, w, h);
+            (nt, nr, t)
+        };
         let mut next = Image::filled(w, h, Rgb::ZERO);
         gouraud(
             &new_tris,

@@ -25,6 +25,33 @@ impl PathTracer {
     /// One path through pixel (x, y); its random numbers come from `rng` only.
     #[inline]
     pub(crate) fn trace_path(&self, x: u32, y: u32, rng: &mut Rng) -> Vec3 {
+        self.trace_path_impl::<false>(x, y, rng, &mut None)
+    }
+
+    /// [`PathTracer::trace_path`], also reporting in `albedo` the texture albedo of the
+    /// camera ray's hit when it is a textured Lambertian surface (`None` otherwise: another
+    /// material, an emitter, a miss). Read off the BSDF the path builds anyway, so it costs
+    /// nothing; the path and its random numbers are exactly `trace_path`'s.
+    #[inline]
+    pub(crate) fn trace_path_albedo(
+        &self,
+        x: u32,
+        y: u32,
+        rng: &mut Rng,
+        albedo: &mut Option<Vec3>,
+    ) -> Vec3 {
+        *albedo = None;
+        self.trace_path_impl::<true>(x, y, rng, albedo)
+    }
+
+    #[inline(always)]
+    fn trace_path_impl<const ALBEDO: bool>(
+        &self,
+        x: u32,
+        y: u32,
+        rng: &mut Rng,
+        albedo: &mut Option<Vec3>,
+    ) -> Vec3 {
         let mut dir = self.camera.direction(x, y, rng.next_2d());
         let mut o = self.camera.origin;
         let mut throughput = Vec3::ONE;
@@ -75,6 +102,13 @@ impl PathTracer {
                 break;
             }
             let bsdf = self.bsdf_at(s.info.material, s.p);
+            if ALBEDO && depth == 0 {
+                if let (Some(super::ResolvedMaterial::Textured(_)), Bsdf::Diffuse { albedo: a }) =
+                    (self.materials.get(s.info.material as usize), bsdf)
+                {
+                    *albedo = Some(a);
+                }
+            }
             if matches!(bsdf, Bsdf::Black) {
                 break;
             }

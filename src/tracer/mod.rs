@@ -116,15 +116,19 @@ pub fn trace_pixels_albedo(
     per_pixel(pixels, cancel, |p| oracle.radiance_and_albedo(p))
 }
 
-/// `f` over `pixels` in parallel batches of [`BATCH`], checking `cancel` between them.
+/// `f` over `pixels` in parallel batches of at most [`BATCH`], checking `cancel` between
+/// them. A short list (the progressive loop's first sample set and late iterations: a few
+/// hundred pixels) is cut into at least 8 batches per thread, so no thread idles while
+/// another finishes a whole 256-pixel batch.
 fn per_pixel<T: Send + Clone + Default>(
     pixels: &[PixelCoord],
     cancel: &CancelToken,
     f: impl Fn(PixelCoord) -> T + Sync,
 ) -> Result<Vec<T>, Cancelled> {
     let mut out = vec![T::default(); pixels.len()];
-    out.par_chunks_mut(BATCH)
-        .zip(pixels.par_chunks(BATCH))
+    let batch = (pixels.len() / (8 * rayon::current_num_threads())).clamp(8, BATCH);
+    out.par_chunks_mut(batch)
+        .zip(pixels.par_chunks(batch))
         .try_for_each(|(o, p)| {
             if cancel.is_cancelled() {
                 return Err(Cancelled);
@@ -376,6 +380,50 @@ impl PathTracer {
 }
 
 impl PathTracer {
+    /// [`PixelOracle::radiance_with`]; with `ALBEDO`, also the mean first-hit texture
+    /// albedo over the same (kept) samples, `None` unless every one hit a textured
+    /// Lambertian surface ([`PixelOracle::radiance_albedo_with`]). The radiance is the
+    /// same bit for bit either way.
+    fn estimate<const ALBEDO: bool>(
+        &self,
+        p: PixelCoord,
+        samples: u32,
+        seed: u64,
+    ) -> (Rgb, Option<Rgb>) {
+        let mut sum = Vec3::ZERO;
+        let mut albedo = Some(Vec3::ZERO);
+        let mut kept = 0u32;
+        for i in 0..samples {
+            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
+            let (v, a) = if ALBEDO {
+                let mut a = None;
+                (self.trace_path_albedo(p.x, p.y, &mut rng, &mut a), a)
+            } else {
+                (self.trace_path(p.x, p.y, &mut rng), None)
+            };
+            if v.is_finite() {
+                sum += v;
+                kept += 1;
+                albedo = albedo.zip(a).map(|(s, a)| s + a);
+            }
+        }
+        if kept < samples {
+            self.dropped
+                .fetch_add(u64::from(samples - kept), Ordering::Relaxed);
+        }
+        if kept == 0 {
+            return (Rgb::ZERO, None);
+        }
+        let albedo = albedo.filter(|_| ALBEDO).map(|s| s / kept as f32);
+        let mean = sum / kept as f32;
+        // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
+        if mean.is_finite() {
+            (mean, albedo)
+        } else {
+            (Rgb::ZERO, albedo)
+        }
+    }
+
     /// The albedo of the textured Lambertian surface the camera ray through `jitter` of
     /// pixel `p` hits; `None` for any other material or a miss.
     fn albedo_at(&self, p: PixelCoord, jitter: glam::Vec2) -> Option<Vec3> {
@@ -402,30 +450,7 @@ impl PixelOracle for PathTracer {
     /// sample index): a pure function of its arguments. Samples that come out NaN or
     /// infinite are dropped and the mean is taken over the others (never returned).
     fn radiance_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Rgb {
-        let mut sum = Vec3::ZERO;
-        let mut kept = 0u32;
-        for i in 0..samples {
-            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
-            let v = self.trace_path(p.x, p.y, &mut rng);
-            if v.is_finite() {
-                sum += v;
-                kept += 1;
-            }
-        }
-        if kept < samples {
-            self.dropped
-                .fetch_add(u64::from(samples - kept), Ordering::Relaxed);
-        }
-        if kept == 0 {
-            return Rgb::ZERO;
-        }
-        let mean = sum / kept as f32;
-        // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
-        if mean.is_finite() {
-            mean
-        } else {
-            Rgb::ZERO
-        }
+        self.estimate::<false>(p, samples, seed).0
     }
 
     fn has_textures(&self) -> bool {
@@ -444,19 +469,10 @@ impl PixelOracle for PathTracer {
     }
 
     fn radiance_albedo_with(&self, p: PixelCoord, samples: u32, seed: u64) -> (Rgb, Option<Rgb>) {
-        let radiance = self.radiance_with(p, samples, seed);
-        if !self.features.has_texture || samples == 0 {
-            return (radiance, None);
+        if !self.features.has_texture {
+            return (self.radiance_with(p, samples, seed), None);
         }
-        // The same jitter as each path's camera ray (its first 2-D draw), so the albedo
-        // averages exactly the footprint the radiance does.
-        let mut sum = Some(Vec3::ZERO);
-        for i in 0..samples {
-            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
-            let j = rng.next_2d();
-            sum = sum.and_then(|s| Some(s + self.albedo_at(p, j)?));
-        }
-        (radiance, sum.map(|s| s / samples as f32))
+        self.estimate::<true>(p, samples, seed)
     }
 
     fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
@@ -585,6 +601,18 @@ mod tests {
                 "pixel {i}: {} vs {e0}",
                 e(i)
             );
+        }
+        // A traced pixel's albedo is read off its own paths: the mean over exactly the
+        // camera rays the radiance averaged, and the radiance is unchanged bit for bit.
+        for i in (0..map.len()).step_by(7) {
+            let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
+            let (v, a) = t.radiance_albedo_with(p, 5, 9);
+            assert_eq!(v.to_array(), t.radiance_with(p, 5, 9).to_array());
+            let taps: Option<Vec<Vec3>> = (0..5)
+                .map(|k| t.albedo_at(p, rng::Rng::for_sample(9, p.x, p.y, k).next_2d()))
+                .collect();
+            let want = taps.map(|v| v.iter().fold(Vec3::ZERO, |s, &a| s + a) / 5.0);
+            assert_eq!(a, want, "{p:?}");
         }
         // A scene without texture builds no map.
         let plain = PathTracer::new(&checker_floor(false));
