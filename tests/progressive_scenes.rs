@@ -64,21 +64,12 @@ fn cornell_box_dark_costs_less_and_stays_close_to_the_reference() {
     );
 }
 
-/// A checkered floor under a low directional light, seen at an angle: the albedo map
-/// (one cheap primary-ray pass) carries the checker, so the progressive renderer traces
-/// few pixels and still reproduces it; plain Gouraud over the same traced pixels (what
-/// the loop did before texture modulation) blurs it several times more.
-#[test]
-fn textures_come_from_the_albedo_map_not_from_tracing() {
+/// A checkered floor under a directional light, seen at an angle; direct light only, 4 spp.
+fn checker_floor(w: u32, h: u32) -> glimpse::scene::Scene {
     use glam::Vec3;
-    use glimpse::progressive::mesh::{gouraud, rasterise, Triangulator};
-    use glimpse::progressive::SampleCell;
-    use glimpse::raster::{Image, PixelCoord};
     use glimpse::scene::{Camera, Light, Material, Texture};
     use glimpse::tracer::fixtures;
-
-    let (w, h) = (120u32, 90u32);
-    let s = fixtures::scene(
+    fixtures::scene(
         w,
         h,
         Camera {
@@ -105,7 +96,20 @@ fn textures_come_from_the_albedo_map_not_from_tracing() {
             irradiance: Vec3::splat(2.0),
         }],
         (4, 1, 7),
-    );
+    )
+}
+
+/// The albedo map (one cheap primary-ray pass) carries the checker, so the progressive
+/// renderer traces few pixels and still reproduces it; plain Gouraud over the same traced
+/// pixels (what the loop did before texture modulation) blurs it several times more.
+#[test]
+fn textures_come_from_the_albedo_map_not_from_tracing() {
+    use glimpse::progressive::mesh::{gouraud, rasterise, Triangulator};
+    use glimpse::progressive::SampleCell;
+    use glimpse::raster::{Image, PixelCoord};
+
+    let (w, h) = (120u32, 90u32);
+    let s = checker_floor(w, h);
     let t = PathTracer::new(&s);
     let cancel = CancelToken::new();
     let reference = render_reference(&t, &cancel, &|_, _| {}).expect("not cancelled");
@@ -154,6 +158,31 @@ fn textures_come_from_the_albedo_map_not_from_tracing() {
         for (name, img) in [("prog", &p.image), ("plain", &plain), ("ref", &reference)] {
             let png = glimpse::raster::encode_png_display(img, 1.0).unwrap();
             std::fs::write(format!("/tmp/tex-{name}.png"), png).unwrap();
+        }
+    }
+}
+
+/// Texture modulation at the extremes: tiny and one-row images, and T0 = 0, which must
+/// still give the reference bit for bit (every pixel is traced and keeps its value).
+#[test]
+fn textured_scenes_at_the_extremes() {
+    let cancel = CancelToken::new();
+    for (w, h) in [(1, 1), (2, 2), (3, 2), (400, 1), (24, 18)] {
+        let mut s = checker_floor(w, h);
+        if (w, h) == (24, 18) {
+            s.progressive.t0 = 0.0;
+            s.progressive.max_iterations = 10_000;
+        }
+        let t = PathTracer::new(&s);
+        let opts = RenderOptions {
+            mode: Some(RenderMode::Progressive),
+            ..RenderOptions::default()
+        };
+        let p = render(&s, &t, &opts, &mut |_| {}, &cancel).expect("not cancelled");
+        assert!(p.last && !p.image.has_non_finite(), "{w}x{h}");
+        if (w, h) == (24, 18) {
+            let r = render_reference(&t, &cancel, &|_, _| {}).expect("not cancelled");
+            assert_eq!(p.image, r, "t0 = 0 is the reference");
         }
     }
 }

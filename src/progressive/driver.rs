@@ -718,7 +718,6 @@ pub fn run<O: PixelOracle>(
                 s,
                 &mut stamp,
                 &mut cbuf,
-                r.albedo.as_deref(),
                 next.pixels_mut(),
             );
         }
@@ -867,10 +866,10 @@ fn fill_complex<O: PixelOracle>(
     s: &Settings,
     stamp: &mut Stamp,
     cbuf: &mut Vec<ContourPixel>,
-    albedo: Option<&[Option<Rgb>]>,
     out: &mut [Rgb],
 ) {
     let w = r.w as usize;
+    let albedo = r.albedo.as_deref();
     contour(tr, r.w, stamp, cbuf);
     let idx = |p: PixelCoord| p.y as usize * w + p.x as usize;
     if cbuf.iter().any(|c| !r.traced[idx(c.p)]) {

@@ -28,6 +28,9 @@ pub struct RenderStats {
     pub total_ms: f64,
     pub trace_ms: f64,
     pub metric_ms: f64,
+    /// Wall time the loop spent on triangulation, rasterisation and shading beyond what ran
+    /// beside the trace (the next triangulation is built while its samples are traced when
+    /// no budget can cut the trace short; that part is inside `trace_ms`).
     pub triangulate_ms: f64,
     pub final_mean_distance: f64,
     pub triangles_final: u64,
