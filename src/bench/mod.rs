@@ -54,6 +54,11 @@ pub struct MethodResult {
     /// Samples per pixel of the uniform render (equal time).
     pub spp: Option<u32>,
     pub flip: FlipScore,
+    /// Mean FLIP against a converged render ([`CONVERGED_SPP_FACTOR`] × the scene's samples,
+    /// another seed): the error against the picture a user actually wants. Blotches that an
+    /// interpolation of noisy samples leaves are judged here against truth, not against
+    /// another noisy image. `None` in quick mode.
+    pub converged_flip: Option<f64>,
     /// Glimpse's metric (adaptive block map mean, JNDs) against the independent reference.
     pub glimpse_distance: f64,
     /// Share of the render spent in the metric and the triangulation.
@@ -156,6 +161,13 @@ fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
 /// the study is repeatable.
 const JUDGE_SEED_OFFSET: u64 = 0x9E37_79B9_7F4A_7C15;
 
+/// The converged render has this many times the scene's samples per pixel: its own noise
+/// is then √8 ≈ 2.8× lower than the reference's, low enough to rank the methods' errors
+/// against truth, for 8 reference times per scene (a 1024-spp render would cost 32–43).
+pub const CONVERGED_SPP_FACTOR: u32 = 8;
+/// Seed of the converged render (independent of the reference, the judge and the twins).
+const CONVERGED_SEED_OFFSET: u64 = 0x2545_F491_4F6C_DD1D;
+
 fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> {
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(scene);
@@ -175,6 +187,21 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         &|_, _| {},
     )?;
     let noise_floor = flip(&judge, &reference, exposure, ppd);
+    let converged = if cfg.quick {
+        None
+    } else {
+        Some(tracer::render_reference_with(
+            &tracer,
+            Some((
+                spp.saturating_mul(CONVERGED_SPP_FACTOR),
+                scene.render.seed ^ CONVERGED_SEED_OFFSET,
+            )),
+            &cancel,
+            &|_, _| {},
+        )?)
+    };
+    let vs_converged =
+        |img: &LinearImage| converged.as_ref().map(|c| flip(c, img, exposure, ppd).mean);
 
     let model = VisionModel::new(display_model(scene), w, h);
     let judge_stack = model.decompose(&judge)?;
@@ -197,6 +224,7 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         pixel_fraction: 1.0,
         spp: Some(spp),
         flip: noise_floor,
+        converged_flip: vs_converged(&reference),
         glimpse_distance: glimpse_distance(&reference)?,
         overhead_share: None,
     });
@@ -228,6 +256,7 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
             pixel_fraction: st.pixel_fraction,
             spp: Some(spp),
             flip: flip(&judge, &f.image, exposure, ppd),
+            converged_flip: vs_converged(&f.image),
             glimpse_distance: glimpse_distance(&f.image)?,
             overhead_share: Some((st.metric_ms + st.triangulate_ms) / st.total_ms.max(1e-9)),
         })
@@ -273,6 +302,7 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         pixel_fraction: 1.0,
         spp: Some(uni_spp),
         flip: flip(&judge, &uni, exposure, ppd),
+        converged_flip: vs_converged(&uni),
         glimpse_distance: glimpse_distance(&uni)?,
         overhead_share: None,
     });

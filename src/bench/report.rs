@@ -16,12 +16,12 @@ pub fn scene_table(r: &SceneResult) -> String {
         "### {} ({}x{}, {} spp; reference {:.0} ms; FLIP noise floor {:.4})\n",
         r.scene, r.width, r.height, r.spp, r.reference_ms, r.noise_floor.mean
     );
-    s.push_str("| method | time | × reference | pixels traced | spp | FLIP mean | FLIP p99 | Glimpse metric (JND) | metric+triangulation |\n");
-    s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    s.push_str("| method | time | × reference | pixels traced | spp | FLIP mean | FLIP p99 | FLIP vs converged | Glimpse metric (JND) | metric+triangulation |\n");
+    s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for m in &r.methods {
         let _ = writeln!(
             s,
-            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {:.3} | {} |",
+            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {} | {:.3} | {} |",
             m.method,
             m.ms,
             m.time_ratio,
@@ -29,6 +29,7 @@ pub fn scene_table(r: &SceneResult) -> String {
             m.spp.map_or("–".into(), |v| v.to_string()),
             m.flip.mean,
             m.flip.p99,
+            m.converged_flip.map_or("–".into(), |v| format!("{v:.4}")),
             m.glimpse_distance,
             m.overhead_share
                 .map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
@@ -71,7 +72,9 @@ pub fn write(
          at the scene's pixels per degree, display-referred) against an independent reference \
          (same scene and spp, another seed); the reference row's FLIP is that noise floor. \
          Guo stops at the progressive run's ray count (noise twins included); uniform gets \
-         the progressive run's wall time. One render per cell, all in one run on this \
+         the progressive run's wall time. \"FLIP vs converged\" judges the same images \
+         against a render with 8× the samples (another seed): error against the picture \
+         wanted rather than against another noisy one. One render per cell, all in one run on this \
          machine: the ratios measured side by side are the result, not the absolute times.\n",
         if cfg.quick { " --quick" } else { "" }
     );
