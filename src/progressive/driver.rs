@@ -21,6 +21,7 @@ use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
 use crate::scene::ObjectId;
 use crate::tracer::{self, PixelOracle};
 use crate::vision::{ContrastStack, VisionModel};
+use rayon::prelude::*;
 use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
@@ -477,13 +478,12 @@ pub fn run<O: PixelOracle>(
                         match d {
                             Some(map) if map.len() == n => {
                                 let mut td = triangle_distances(&raster, map.pixels());
-                                let finite: Vec<f64> = map
+                                let (sum, count) = map
                                     .pixels()
                                     .iter()
                                     .filter(|v| v.is_finite())
-                                    .map(|&v| f64::from(v))
-                                    .collect();
-                                mean_d = finite.iter().sum::<f64>() / finite.len().max(1) as f64;
+                                    .fold((0f64, 0usize), |(s, c), &v| (s + f64::from(v), c + 1));
+                                mean_d = sum / count.max(1) as f64;
                                 // Noise compensation (super::noise) changes the
                                 // distances classified, not T1: T1 stays the mean of the
                                 // first raw map (F&P04 §5). A mean of the compensated
@@ -493,18 +493,21 @@ pub fn run<O: PixelOracle>(
                                 // noisy field was traced at 66 % instead of 10 %.
                                 let on_contour: Option<Vec<bool>> = noise_map.as_ref().map(|_| {
                                     (0..td.len())
+                                        .into_par_iter()
                                         .map(|t| spans_contour(&raster, t, ids.pixels()))
                                         .collect()
                                 });
                                 if let (Some(nm), Some(oc)) = (&noise_map, &on_contour) {
                                     let tn = triangle_noise(&raster, nm);
-                                    for ((d, dn), &edge) in td.iter_mut().zip(&tn).zip(oc) {
-                                        // The object-id map is exact: a triangle across an
-                                        // object contour keeps F&P04's raw distance.
-                                        if !edge {
-                                            *d = signal_distance(*d, *dn);
-                                        }
-                                    }
+                                    td.par_iter_mut().zip(&tn).zip(oc).for_each(
+                                        |((d, dn), &edge)| {
+                                            // The object-id map is exact: a triangle across
+                                            // an object contour keeps F&P04's raw distance.
+                                            if !edge {
+                                                *d = signal_distance(*d, *dn);
+                                            }
+                                        },
+                                    );
                                 }
                                 // T1 guarded (§2.9).
                                 let t1v = *t1.get_or_insert_with(|| guarded_t1(t0, mean_d));

@@ -177,9 +177,11 @@ impl Raster {
     /// 0 for a triangle that owns no pixel. The per-triangle distances of F&P04 §4.2 and
     /// the noise distances of super::noise are both such means.
     #[must_use]
-    pub fn triangle_means(&self, map: &[f32], value: impl Fn(f32) -> f64) -> Vec<f64> {
+    pub fn triangle_means(&self, map: &[f32], value: impl Fn(f32) -> f64 + Sync) -> Vec<f64> {
         let nt = self.start.len().saturating_sub(1);
+        // In parallel over triangles; each mean is summed in pixel order, as before.
         (0..nt)
+            .into_par_iter()
             .map(|t| {
                 let px = self.pixels_of(t);
                 if px.is_empty() {
