@@ -8,6 +8,13 @@
 //! ≤ 64 B/px/image. Issue #3's work took the 2-core dev box (pair 1, CPU time per run)
 //! from decompose both ≈ 26 ms / full map ≈ 87 ms to ≈ 9.5 ms / ≈ 61 ms; wall-clock
 //! medians are about half of those on an idle machine.
+//!
+//! Issue #4 adds the block map between successive progressive frames of
+//! scenes/spheres-rough.json (320×240, all traced pixels as seeds), optimised versus the
+//! issue #3 algorithm (`metric::reference`) in the same run, outputs asserted
+//! bit-identical. `GLIMPSE_VISION_BENCH_ONLY=progressive` runs only that case;
+//! `GLIMPSE_VISION_BENCH_KERNEL=1` adds a kernel-only diagnostic (scattered, contiguous
+//! and traced pixel sets).
 
 use criterion::black_box;
 use glimpse::metric::{self, MetricParams};
@@ -77,6 +84,10 @@ fn min(v: &[f64]) -> f64 {
 }
 
 fn main() {
+    if std::env::var("GLIMPSE_VISION_BENCH_ONLY").as_deref() == Ok("progressive") {
+        progressive_frames();
+        return;
+    }
     let (w, h) = (512, 512);
     let a = textured(w, h);
     // Pair 1 (the issue's): a textured image and a uniformly noisy copy.
@@ -100,6 +111,151 @@ fn main() {
         &a,
         &local,
     );
+    // Issue #4: the block map as the progressive renderer calls it.
+    progressive_frames();
+}
+
+/// Issue #4: `block_map` between two successive progressive frames of
+/// scenes/spheres-rough.json (320×240), seeded with every traced pixel of the later frame
+/// (what `VisionJudge::distance` passes), optimised versus the issue #3 algorithm kept in
+/// `metric::reference`, interleaved in one run, outputs checked bit-identical.
+/// `GLIMPSE_VISION_BENCH_ONLY=progressive` skips the 512² pairs (profiling).
+fn progressive_frames() {
+    use glimpse::cancel::CancelToken;
+    use glimpse::progressive::{render, RenderOptions, SampleCell};
+    use glimpse::raster::PixelCoord;
+    use glimpse::scene::{parse_scene, Limits, RenderMode, SceneOrigin};
+    use glimpse::tracer::PathTracer;
+
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/spheres-rough.json");
+    let text = std::fs::read_to_string(&path).expect("scene file");
+    let origin = SceneOrigin::File {
+        dir: path.parent().expect("scenes dir").to_path_buf(),
+    };
+    let scene = parse_scene(&text, &origin, &Limits::command_line()).expect("valid scene");
+    let tracer = PathTracer::new(&scene);
+    let opts = RenderOptions {
+        mode: Some(RenderMode::Progressive),
+        ..RenderOptions::default()
+    };
+    let mut frames: Vec<(LinearImage, Vec<PixelCoord>)> = Vec::new();
+    let t = Instant::now();
+    let last = render(
+        &scene,
+        &tracer,
+        &opts,
+        &mut |f| {
+            let (w, h) = (f.samples.width(), f.samples.height());
+            let seeds = (0..h)
+                .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+                .filter(|p| *f.samples.get(p.x, p.y) != SampleCell::Interpolated)
+                .collect();
+            frames.push((f.image.clone(), seeds));
+        },
+        &CancelToken::new(),
+    )
+    .expect("not cancelled");
+    let render_ms = t.elapsed().as_secs_f64() * 1e3;
+    let (w, h) = (last.image.width(), last.image.height());
+    let d = scene.display;
+    let model = VisionModel::new(
+        DisplayModel {
+            peak_luminance: d.peak_luminance,
+            black_luminance: d.black_luminance,
+            exposure: d.exposure,
+            pixels_per_degree: d.pixels_per_degree,
+        },
+        w,
+        h,
+    );
+    let runs = std::env::var("GLIMPSE_VISION_BENCH_RUNS")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(11);
+    println!(
+        "== progressive frames of spheres-rough {w}x{h} ({} frames, render {render_ms:.0} ms), {runs} runs (medians)",
+        frames.len()
+    );
+    // Every pair of successive, different frames (the driver judges each of them).
+    let n = frames.len();
+    let picks: Vec<usize> = (0..n.saturating_sub(1))
+        .filter(|&k| frames[k].0.pixels() != frames[k + 1].0.pixels())
+        .collect();
+    let (mut all_old, mut all_new) = (0.0, 0.0);
+    for k in picks {
+        if k + 1 >= n {
+            continue;
+        }
+        let (prev, cur) = (&frames[k].0, &frames[k + 1].0);
+        let same_px = prev
+            .pixels()
+            .iter()
+            .zip(cur.pixels())
+            .filter(|(p, q)| p == q)
+            .count();
+        println!(
+            "  pair {k}: {:.1} % of pixels unchanged",
+            100.0 * same_px as f64 / prev.len() as f64
+        );
+        let seeds = &frames[k + 1].1;
+        let sa = model.decompose(prev).expect("finite");
+        let sb = model.decompose(cur).expect("finite");
+        let params = MetricParams {
+            homogeneity: scene.progressive.homogeneity,
+            epsilon: scene.progressive.epsilon,
+            seed: 0x5eed ^ k as u64,
+        };
+        let (mut t_old, mut t_new) = (Vec::new(), Vec::new());
+        let (mut c_old, mut c_new) = (0.0, 0.0);
+        let mut out = None;
+        for _ in 0..runs {
+            let (t, c) = (Instant::now(), cpu_ms());
+            let r = metric::reference::block_map_reference(&model, &sa, &sb, seeds, &params);
+            t_old.push(t.elapsed().as_secs_f64() * 1e3);
+            c_old += cpu_ms() - c;
+            let (t, c) = (Instant::now(), cpu_ms());
+            let m = metric::block_map(&model, &sa, &sb, seeds, &params);
+            t_new.push(t.elapsed().as_secs_f64() * 1e3);
+            c_new += cpu_ms() - c;
+            let same = r.pixels_evaluated == m.pixels_evaluated
+                && r.leaves == m.leaves
+                && r.map
+                    .pixels()
+                    .iter()
+                    .zip(m.map.pixels())
+                    .all(|(p, q)| p.to_bits() == q.to_bits());
+            assert!(same, "block_map differs from the reference (pair {k})");
+            out = Some(black_box(m));
+        }
+        let m = out.expect("ran");
+        let (old, new) = (median(t_old.clone()), median(t_new.clone()));
+        all_old += old;
+        all_new += new;
+        let r = runs as f64;
+        println!(
+            "  pair {k}->{}: {} seeds ({:.1} %), {} evaluated ({:.1} %), {} leaves",
+            k + 1,
+            seeds.len(),
+            100.0 * seeds.len() as f64 / f64::from(w * h),
+            m.pixels_evaluated,
+            100.0 * m.pixels_evaluated as f64 / f64::from(w * h),
+            m.leaves.len()
+        );
+        println!(
+            "    block map  reference {old:7.2} ms (fastest {:.2}, CPU {:.1})   optimised {new:7.2} ms (fastest {:.2}, CPU {:.1})   {:.2}x",
+            min(&t_old),
+            c_old / r,
+            min(&t_new),
+            c_new / r,
+            old / new.max(1e-9)
+        );
+    }
+    if std::env::var("GLIMPSE_VISION_BENCH_KERNEL").is_ok() {
+        let k = (n / 2).min(n.saturating_sub(2));
+        kernel_locality(&model, &frames[k].0, &frames[k + 1].0, &frames[k + 1].1);
+    }
+    println!("  sum of medians: reference {all_old:.2} ms, optimised {all_new:.2} ms (outputs bit-identical)");
 }
 
 fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
@@ -201,4 +357,58 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
         "  ContrastStack             {:8.2} bytes/pixel/image",
         sa.bytes() as f64 / px
     );
+}
+
+/// Diagnostic (GLIMPSE_VISION_BENCH_KERNEL=1): the per-pixel kernel between two
+/// successive frames on a scattered 35 % subset in raster order, on the same number of
+/// contiguous pixels, and on the later frame's traced pixels.
+fn kernel_locality(
+    model: &VisionModel,
+    a: &LinearImage,
+    b: &LinearImage,
+    traced: &[glimpse::raster::PixelCoord],
+) {
+    use glimpse::raster::PixelCoord;
+    let (w, h) = (a.width(), a.height());
+    let sa = model.decompose(a).expect("finite");
+    let sb = model.decompose(b).expect("finite");
+    let mut s = 0x1234_5678_u64;
+    let scattered: Vec<PixelCoord> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+        .filter(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s % 100 < 35
+        })
+        .collect();
+    let contiguous: Vec<PixelCoord> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+        .take(scattered.len())
+        .collect();
+    let mut out = vec![0f32; scattered.len()];
+    let traced = traced.to_vec();
+    out.resize(out.len().max(traced.len()), 0.0);
+    for (name, px) in [
+        ("scattered", &scattered),
+        ("contiguous", &contiguous),
+        ("traced", &traced),
+        ("scattered", &scattered),
+        ("contiguous", &contiguous),
+        ("traced", &traced),
+    ] {
+        let mut t = Vec::new();
+        for _ in 0..15 {
+            let t0 = Instant::now();
+            model.distances_at(&sa, &sb, px, &mut out[..px.len()]);
+            t.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        black_box(&out);
+        println!(
+            "  kernel on {} {name} pixels: median {:.2} ms, fastest {:.2} ms",
+            px.len(),
+            median(t.clone()),
+            min(&t)
+        );
+    }
 }

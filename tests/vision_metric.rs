@@ -217,3 +217,74 @@ fn leaves_hold_every_sample_once_and_paint_their_mean() {
         (1, 1, 0.0)
     );
 }
+
+/// Bit-for-bit comparison of two block maps (map bits, leaves, pixel count).
+fn assert_same(got: &metric::DistanceMap, want: &metric::DistanceMap, what: &str) {
+    assert_eq!(
+        got.pixels_evaluated, want.pixels_evaluated,
+        "{what}: pixels"
+    );
+    assert_eq!(got.leaves, want.leaves, "{what}: leaves");
+    let bits = |m: &metric::DistanceMap| -> Vec<u32> {
+        m.map.pixels().iter().map(|d| d.to_bits()).collect()
+    };
+    assert_eq!(
+        (got.map.width(), got.map.height()),
+        (want.map.width(), want.map.height())
+    );
+    assert!(bits(got) == bits(want), "{what}: map differs");
+}
+
+#[test]
+fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
+    // Issue #4: the optimised quad-tree must give exactly what the issue #3 code (kept as
+    // `metric::reference`) gives. A noisy progressive-like pair, seeds as the renderer
+    // passes them (many, raster order, some duplicated and out of range), several metric
+    // seeds and (H, ε) so the tree goes deep, random and dense sampling both occur.
+    let mut cases = 0;
+    for &(w, h) in &[(96u32, 72u32), (1, 1), (1, 37), (45, 2), (9, 130)] {
+        let m = model(w, h);
+        let a = textured(w, h);
+        let b = noisy(&noisy(&a, 0.15, 11, |_, _| true), 0.4, 12, |x, y| {
+            x < w / 2 && y > h / 3
+        });
+        let (sa, sb) = stacks(&m, &a, &b);
+        let every_other: Vec<PixelCoord> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+            .filter(|p| (p.x * 7 + p.y * 3) % 5 < 2)
+            .collect();
+        let mut messy = every_other.clone();
+        messy.extend(every_other.iter().rev().take(50).copied()); // duplicates
+        messy.push(PixelCoord::new(w, 0)); // out of range
+        messy.push(PixelCoord::new(0, h + 3));
+        for seeds in [&[][..], &every_other[..], &messy[..]] {
+            for (seed, homogeneity, epsilon) in [(1u64, 0.8f32, 1.0f32), (99, 0.95, 0.3)] {
+                let p = MetricParams {
+                    homogeneity,
+                    epsilon,
+                    seed,
+                };
+                let got = metric::block_map(&m, &sa, &sb, seeds, &p);
+                let want = metric::reference::block_map_reference(&m, &sa, &sb, seeds, &p);
+                let what = format!("{w}x{h}, {} seeds, {p:?}", seeds.len());
+                assert_same(&got, &want, &what);
+                cases += 1;
+            }
+        }
+    }
+    assert_eq!(cases, 30);
+    // The big case must really exercise the deep tree (else the comparison proves little).
+    let (w, h) = (96, 72);
+    let m = model(w, h);
+    let a = textured(w, h);
+    let b = noisy(&a, 0.4, 12, |_, _| true);
+    let (sa, sb) = stacks(&m, &a, &b);
+    let p = MetricParams {
+        homogeneity: 0.95,
+        epsilon: 0.3,
+        seed: 99,
+    };
+    let bm = metric::block_map(&m, &sa, &sb, &[], &p);
+    assert!(bm.leaves.len() > 20, "{} leaves", bm.leaves.len());
+    assert!(bm.leaves.iter().any(|l| l.width < 8 && l.height < 8));
+}

@@ -124,6 +124,18 @@ const MIN_SPLIT: u32 = 8;
 /// Breadth-first: each tree level draws its cells' samples (seeds first, then uniform
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
+///
+/// Issue #4: bit-identical to [`reference::block_map_reference`] (the issue #3 code; tests
+/// compare them on noisy pairs) but cheaper on progressive frames, where every traced pixel
+/// is a seed and the tree goes deep. What changed, all without touching the sampling order
+/// or the order samples are summed in:
+/// - a split distributes the parent's samples and unused seeds to its children in one pass
+///   (the old code filtered the whole parent list once per child) and reads the unused
+///   seeds in place (no `split_off` copy); sample/seed vectors are recycled between cells;
+/// - the unused-seed re-filter is gone (an unused seed is never taken: a cell draws random
+///   pixels only after using all its seeds), as is the second n-sized dedup mask;
+/// - each level's batch is ordered by one `u64` sort of (pixel index, batch index) keys
+///   instead of a comparison sort with indirect (y, x) lookups.
 #[must_use]
 pub fn block_map(
     model: &VisionModel,
@@ -152,20 +164,23 @@ pub fn block_map(
         1.0
     };
     let max_depth = u32::BITS - (w.max(h) - 1).leading_zeros(); // ceil(log2 max(W, H))
-                                                                // `taken` marks evaluated (or about to be) pixels; cells are disjoint, so one mask
-                                                                // serves every cell.
-    let mut taken = vec![false; w as usize * h as usize];
+    let n = w as usize * h as usize;
+    // `taken` marks evaluated (or about to be) pixels; cells are disjoint, so one mask
+    // serves every cell.
+    let mut taken = vec![false; n];
     let idx = |p: PixelCoord| p.y as usize * w as usize + p.x as usize;
-    // Seeds: in bounds, first occurrence only.
-    let mut seen = vec![false; taken.len()];
-    let mut root_seeds = Vec::new();
+    // Seeds: in bounds, first occurrence only. `taken` doubles as the "seen" mask and is
+    // cleared again afterwards (O(seeds), cheaper than a second n-sized mask).
+    let mut root_seeds = Vec::with_capacity(seeds.len().min(n));
     for &p in seeds {
-        if p.x < w && p.y < h && !seen[idx(p)] {
-            seen[idx(p)] = true;
+        if p.x < w && p.y < h && !taken[idx(p)] {
+            taken[idx(p)] = true;
             root_seeds.push(p);
         }
     }
-    drop(seen);
+    for &p in &root_seeds {
+        taken[idx(p)] = false;
+    }
     let mut frontier = vec![Cell {
         x: 0,
         y: 0,
@@ -175,46 +190,47 @@ pub fn block_map(
         samples: Vec::new(),
         seeds: root_seeds,
     }];
+    let mut next: Vec<Cell> = Vec::new();
+    let mut pools = Pools::default();
     let mut leaves = Vec::new();
     let mut evaluated = 0usize;
     let mut batch: Vec<PixelCoord> = Vec::new();
     let mut values: Vec<f32> = Vec::new();
-    let mut order: Vec<u32> = Vec::new();
+    let mut keys: Vec<u64> = Vec::new();
     let mut sorted: Vec<PixelCoord> = Vec::new();
     let mut sorted_values: Vec<f32> = Vec::new();
+    let mut free_px: Vec<PixelCoord> = Vec::new();
+    // Per cell of the level: its batch range and how many of its seeds it used.
+    let mut ranges: Vec<(usize, usize, usize)> = Vec::new();
     while !frontier.is_empty() {
-        // 1. Choose each cell's new samples.
+        // 1. Choose each cell's new samples (same draws, same order as the reference).
         batch.clear();
-        let mut ranges = Vec::with_capacity(frontier.len());
+        ranges.clear();
         for cell in &mut frontier {
             let start = batch.len();
             let want = samples_for_area(cell.area());
             let mut need = want.saturating_sub(cell.samples.len());
             let mut rng = cell.rng(params.seed);
             // Seeds first (F&P04 initialise the metric with the rendering sample set); a
-            // random subset of them when there are more than needed.
-            // (Already-evaluated pixels cannot be here by construction; filter anyway.)
-            let mut seeds = std::mem::take(&mut cell.seeds);
-            seeds.retain(|&p| !taken[idx(p)]);
-            let mut unused = Vec::new();
-            if seeds.len() <= need {
-                batch.extend_from_slice(&seeds);
+            // random subset of them when there are more than needed. Unused seeds stay in
+            // `cell.seeds[used..]` for the children.
+            let s = &mut cell.seeds;
+            debug_assert!(s.iter().all(|&p| !taken[idx(p)]));
+            let used = if s.len() <= need {
+                s.len()
             } else {
-                let mut s = seeds;
                 for i in 0..need {
                     let j = rng.random_range(i..s.len());
                     s.swap(i, j);
                 }
-                batch.extend_from_slice(&s[..need]);
-                unused = s.split_off(need);
-            }
-            cell.seeds = unused;
-            for &p in &batch[start..] {
+                need
+            };
+            batch.extend_from_slice(&s[..used]);
+            for &p in &s[..used] {
                 taken[idx(p)] = true;
             }
-            need -= batch.len() - start;
-            let free =
-                (cell.area() as usize).saturating_sub(cell.samples.len() + (batch.len() - start));
+            need -= used;
+            let free = (cell.area() as usize).saturating_sub(cell.samples.len() + used);
             let need = need.min(free);
             if need > 0 {
                 if need * 2 <= free {
@@ -232,49 +248,63 @@ pub fn block_map(
                         }
                     }
                 } else {
-                    // Dense (then the cell is small, < 6000 px): partial shuffle of the free pixels.
-                    let mut pool: Vec<PixelCoord> = (cell.y..cell.y + cell.h)
-                        .flat_map(|y| (cell.x..cell.x + cell.w).map(move |x| PixelCoord::new(x, y)))
-                        .filter(|&p| !taken[idx(p)])
-                        .collect();
-                    for i in 0..need {
-                        let j = rng.random_range(i..pool.len());
-                        pool.swap(i, j);
-                        taken[idx(pool[i])] = true;
+                    // Dense (then the cell is small, < 6000 px): partial shuffle of the free
+                    // pixels, in raster order as the reference lists them.
+                    free_px.clear();
+                    for y in cell.y..cell.y + cell.h {
+                        for x in cell.x..cell.x + cell.w {
+                            let p = PixelCoord::new(x, y);
+                            if !taken[idx(p)] {
+                                free_px.push(p);
+                            }
+                        }
                     }
-                    batch.extend_from_slice(&pool[..need]);
+                    for i in 0..need {
+                        let j = rng.random_range(i..free_px.len());
+                        free_px.swap(i, j);
+                        taken[idx(free_px[i])] = true;
+                    }
+                    batch.extend_from_slice(&free_px[..need]);
                 }
             }
-            ranges.push(start..batch.len());
+            ranges.push((start, batch.len(), used));
         }
         // 2. Evaluate the whole level's new pixels at once (parallel inside).
         // Random positions hit the level planes all over memory; evaluating in raster order
-        // keeps the lookups cache-friendly. Values are scattered back to batch order.
-        order.clear();
-        order.extend(0..batch.len() as u32);
-        order.sort_unstable_by_key(|&i| {
-            let p = batch[i as usize];
-            (p.y, p.x)
-        });
+        // keeps the lookups cache-friendly. Values are scattered back to batch order. The
+        // order cannot change a value (the kernel is per lane).
+        keys.clear();
+        if n <= u32::MAX as usize && batch.len() <= u32::MAX as usize {
+            // (raster index, batch index) in one u64: a plain integer sort.
+            keys.extend(
+                batch
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &p)| ((idx(p) as u64) << 32) | i as u64),
+            );
+            keys.sort_unstable();
+        } else {
+            // Over 2^32 pixels: batch order (slower lookups, same values).
+            keys.extend(0..batch.len() as u64);
+        }
         sorted.clear();
-        sorted.extend(order.iter().map(|&i| batch[i as usize]));
+        sorted.extend(keys.iter().map(|&k| batch[(k & 0xffff_ffff) as usize]));
         sorted_values.clear();
         sorted_values.resize(batch.len(), 0.0);
         model.distances_at(a, b, &sorted, &mut sorted_values);
         values.clear();
         values.resize(batch.len(), 0.0);
-        for (&i, &v) in order.iter().zip(&sorted_values) {
-            values[i as usize] = v;
+        for (&k, &v) in keys.iter().zip(&sorted_values) {
+            values[(k & 0xffff_ffff) as usize] = v;
         }
         evaluated += batch.len();
         // 3. Decide per cell.
-        let mut next = Vec::new();
-        for (mut cell, r) in frontier.drain(..).zip(ranges) {
+        for (mut cell, &(start, end, used)) in frontier.drain(..).zip(&ranges) {
             cell.samples.extend(
-                batch[r.clone()]
+                batch[start..end]
                     .iter()
                     .copied()
-                    .zip(values[r].iter().copied()),
+                    .zip(values[start..end].iter().copied()),
             );
             let n = cell.samples.len().max(1);
             let mean = cell.samples.iter().map(|s| f64::from(s.1)).sum::<f64>() / n as f64;
@@ -307,17 +337,91 @@ pub fn block_map(
                     mean: mean as f32,
                     homogeneity: homog as f32,
                 });
+                pools.recycle(cell);
             } else {
-                split(cell, &mut next);
+                split_fast(cell, used, &mut next, &mut pools);
             }
         }
-        frontier = next;
+        std::mem::swap(&mut frontier, &mut next);
     }
     DistanceMap {
         map,
         leaves,
         pixels_evaluated: evaluated,
     }
+}
+
+/// Emptied sample and seed vectors of finished cells, reused by new ones (the tree has
+/// hundreds to thousands of cells per call; their lists would otherwise be fresh heap
+/// allocations grown from zero).
+#[derive(Default)]
+struct Pools {
+    samples: Vec<Vec<(PixelCoord, f32)>>,
+    seeds: Vec<Vec<PixelCoord>>,
+}
+
+impl Pools {
+    fn recycle(&mut self, cell: Cell) {
+        let (mut s, mut p) = (cell.samples, cell.seeds);
+        s.clear();
+        p.clear();
+        self.samples.push(s);
+        self.seeds.push(p);
+    }
+}
+
+/// [`split`]'s result in one pass: same children in the same order (rows of halves top
+/// first, left half first), each with the parent's samples and unused seeds
+/// (`cell.seeds[used..]`) that fall inside it, in the parent's order.
+fn split_fast(cell: Cell, used: usize, out: &mut Vec<Cell>, pools: &mut Pools) {
+    let (nx, hw) = if cell.w >= MIN_SPLIT {
+        (2, cell.w / 2)
+    } else {
+        (1, cell.w)
+    };
+    let (ny, hh) = if cell.h >= MIN_SPLIT {
+        (2, cell.h / 2)
+    } else {
+        (1, cell.h)
+    };
+    let first = out.len();
+    for cy in 0..ny {
+        for cx in 0..nx {
+            let (x, cw) = if cx == 0 {
+                (cell.x, hw)
+            } else {
+                (cell.x + hw, cell.w - hw)
+            };
+            let (y, ch) = if cy == 0 {
+                (cell.y, hh)
+            } else {
+                (cell.y + hh, cell.h - hh)
+            };
+            out.push(Cell {
+                x,
+                y,
+                w: cw,
+                h: ch,
+                depth: cell.depth + 1,
+                samples: pools.samples.pop().unwrap_or_default(),
+                seeds: pools.seeds.pop().unwrap_or_default(),
+            });
+        }
+    }
+    // Which child a pixel of the parent falls in (with one half per axis, always the first).
+    let (mx, my) = (cell.x + hw, cell.y + hh);
+    let child = |p: PixelCoord| {
+        let cx = usize::from(nx == 2 && p.x >= mx);
+        let cy = usize::from(ny == 2 && p.y >= my);
+        first + cy * nx + cx
+    };
+    for &s in &cell.samples {
+        out[child(s.0)].samples.push(s);
+    }
+    for &p in &cell.seeds[used.min(cell.seeds.len())..] {
+        out[child(p)].seeds.push(p);
+    }
+    pools.recycle(cell);
 }
 
 /// Splits each dimension ≥ 8 px into floor/ceil halves (2 or 4 children); children inherit
@@ -378,6 +482,10 @@ pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> Di
         pixels_evaluated,
     }
 }
+
+/// The issue #3 algorithm, the bit-exact reference of [`block_map`] (tests, benches).
+#[doc(hidden)]
+pub mod reference;
 
 #[cfg(test)]
 mod tests;

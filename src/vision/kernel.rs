@@ -1,7 +1,9 @@
 //! The per-pixel part of the model (vision-model.md §2.3–§2.7, procedure §2.8) evaluated
-//! for [`LANES`] pixels at once, structure-of-arrays: every value below is a `[f32; 8]`
-//! with one pixel per lane, so each lane loop compiles to packed SIMD code (SSE2 pairs on
-//! the baseline target, AVX2 through [`VisionModel::batch`]'s runtime dispatch).
+//! for [`LANES`] pixels at once, structure-of-arrays: every value below is a
+//! `[f32; LANES]` with one pixel per lane, so each lane loop compiles to packed SIMD code
+//! (SSE2 on the baseline target, AVX2 or AVX-512 through [`VisionModel::batch`]'s runtime
+//! dispatch). The `8` in names (`V8`, `distance8`, ...) is historical: LANES was 8 until
+//! issue #4.
 //!
 //! Why: the per-pixel map was ~1.7 µs CPU per pixel, 80 % of it in the ≈ 70 powers per
 //! pixel of §2.8, computed 4 lanes at a time with a quarter of the lanes idle, plus a
@@ -15,6 +17,10 @@
 //! the bilinear interpolation 4 receptors at a time followed by a transpose (both were
 //! scalar code before).
 //!
+//! Issue #4 (the progressive renderer's block map, 2 successive frames): LANES 8 → 16
+//! with an AVX-512 path, and bands whose signals are bitwise unchanged between the two
+//! images are skipped (`distance8`); both change no bit of any distance.
+//!
 //! Results are bitwise identical whatever the vector width (only IEEE +, −, ×, ÷, min,
 //! max; no fused multiply-add), so the dispatch cannot change a distance.
 
@@ -27,8 +33,11 @@ use super::pyramid::{Plane, P4};
 use super::{ContrastStack, VisionModel, MAX_BANDS};
 use crate::raster::PixelCoord;
 
-/// Pixels per kernel call.
-pub const LANES: usize = 8;
+/// Pixels per kernel call. Issue #4: 16 (was 8) so the AVX-512 path fills a 512-bit
+/// register per value; on AVX2 each value is two 256-bit registers (measured no slower:
+/// more independent work per power chain). Lanes are independent, so the width changes
+/// no result.
+pub const LANES: usize = 16;
 /// One value per pixel of a kernel call.
 pub type V8 = [f32; LANES];
 
@@ -255,6 +264,19 @@ fn transpose(r: &[P4; LANES], out: &mut [V8; 4]) {
 /// Visible contrasts of 8 pixels: `[band][channel A, RG, BY][lane]`.
 pub type Contrasts8 = [[V8; 3]; MAX_BANDS];
 
+/// Receptor signals of 8 pixels at every level: `[level][receptor][lane]`.
+type Levels8 = [[V8; 4]; MAX_BANDS + 1];
+
+/// Bitwise equality of two levels' signals (no early exit, so it vectorises).
+#[inline(always)]
+fn same_bits(x: &[V8; 4], y: &[V8; 4]) -> bool {
+    let mut diff = 0u32;
+    for (a, b) in x.as_flattened().iter().zip(y.as_flattened()) {
+        diff |= a.to_bits() ^ b.to_bits();
+    }
+    diff == 0
+}
+
 impl VisionModel {
     /// Lookup geometry of every level for pixels `(px, py)` (all in range).
     #[inline(always)]
@@ -280,12 +302,29 @@ impl VisionModel {
         taps: &[Taps; MAX_BANDS + 1],
         out: &mut Contrasts8,
     ) {
+        let lv = Self::fetch_levels(s, taps);
+        self.band_contrasts(&lv, &[true; MAX_BANDS], out);
+    }
+
+    /// The receptor signals of every level for 8 pixels (§2.2 lookups).
+    #[inline(always)]
+    fn fetch_levels(s: &ContrastStack, taps: &[Taps; MAX_BANDS + 1]) -> Levels8 {
         let mut lv = [[[0f32; LANES]; 4]; MAX_BANDS + 1];
         for ((l, t), p) in lv.iter_mut().zip(taps).zip(&s.levels) {
             *l = t.fetch(p);
         }
+        lv
+    }
+
+    /// §2.3–§2.6 from fetched level signals, for the bands with `live[band]` (the others'
+    /// outputs are left untouched).
+    #[inline(always)]
+    fn band_contrasts(&self, lv: &Levels8, live: &[bool; MAX_BANDS], out: &mut Contrasts8) {
         let tc = self.transducer;
         for (bi, (band, o)) in self.bands.iter().zip(out.iter_mut()).enumerate() {
+            if !live[bi] {
+                continue;
+            }
             let (g, lo) = (&lv[bi], &lv[bi + 1]);
             // §2.3: bt = G(low-pass one level coarser, clamped ≥ 0) · band value.
             let mut bt = [[0f32; LANES]; 4];
@@ -344,23 +383,48 @@ impl VisionModel {
         let nb = nb
             .min(a.levels.len().saturating_sub(1))
             .min(b.levels.len().saturating_sub(1));
-        self.contrasts8(a, &ta, &mut va);
-        self.contrasts8(b, tb, &mut vb);
-        let (va, vb) = (&va.as_flattened()[..3 * nb], &vb.as_flattened()[..3 * nb]);
+        let lva = Self::fetch_levels(a, &ta);
+        let lvb = Self::fetch_levels(b, tb);
+        // Issue #4: between two progressive frames most of the image is unchanged, so a
+        // band often reads bitwise-identical signals (its level and the next coarser one)
+        // in both images for all 8 pixels. Its visible contrasts are then identical, every
+        // ΔV is 0 (or NaN from ∞ − ∞), which leaves m unchanged (`max` ignores NaN) and adds
+        // exactly +0.0 to the Minkowski sum (r ≤ 1e-30 or NaN → 0): skipping the band's
+        // ≈ 17 powers per pixel changes no bit of the distance (`band_skip_tests`
+        // `unchanged_bands_are_skipped_bit_exactly` below).
+        let mut live = [true; MAX_BANDS];
+        if same {
+            let eq: [bool; MAX_BANDS + 1] = std::array::from_fn(|l| same_bits(&lva[l], &lvb[l]));
+            for (bi, lb) in live.iter_mut().enumerate().take(nb) {
+                *lb = !(eq[bi] && eq[bi + 1]);
+            }
+        }
+        self.band_contrasts(&lva, &live, &mut va);
+        self.band_contrasts(&lvb, &live, &mut vb);
         let mut m = [0f32; LANES];
-        for (ca, cb) in va.iter().zip(vb) {
-            for j in 0..LANES {
-                m[j] = m[j].max((ca[j] - cb[j]).abs());
+        for bi in 0..nb {
+            if !live[bi] {
+                continue;
+            }
+            for (ca, cb) in va[bi].iter().zip(&vb[bi]) {
+                for j in 0..LANES {
+                    m[j] = m[j].max((ca[j] - cb[j]).abs());
+                }
             }
         }
         let inv: V8 = std::array::from_fn(|j| if m[j] > 0.0 { 1.0 / m[j] } else { 0.0 });
         let beta = self.calib.minkowski as f32;
         let mut s = [0f64; LANES];
-        for (ca, cb) in va.iter().zip(vb) {
-            for j in 0..LANES {
-                let r = (ca[j] - cb[j]).abs() * inv[j];
-                let pw = exp2(beta * log2(r.max(1e-30)));
-                s[j] += f64::from(if r > 1e-30 { pw } else { 0.0 });
+        for bi in 0..nb {
+            if !live[bi] {
+                continue;
+            }
+            for (ca, cb) in va[bi].iter().zip(&vb[bi]) {
+                for j in 0..LANES {
+                    let r = (ca[j] - cb[j]).abs() * inv[j];
+                    let pw = exp2(beta * log2(r.max(1e-30)));
+                    s[j] += f64::from(if r > 1e-30 { pw } else { 0.0 });
+                }
             }
         }
         let inv_beta = 1.0 / beta;
@@ -424,8 +488,26 @@ impl VisionModel {
         self.batch_kernel(a, b, at, out);
     }
 
-    /// [`Self::batch_kernel`] with 8-wide AVX2 code when the CPU has it. Both paths give
-    /// bitwise-identical results (no FMA contraction), tested in tests.rs.
+    /// Issue #4: the same kernel as one 16-lane AVX-512 register per value. On the dev
+    /// box (AMD EPYC, AVX-512) the kernel on progressive-frame pixels went from ≈ 4.7 to
+    /// ≈ 3.5 ms per 27 k pixels (benches/vision.rs, GLIMPSE_VISION_BENCH_KERNEL=1).
+    /// Bitwise identical to the other paths (same IEEE operations per lane, no FMA:
+    /// Rust never contracts); `band_skip_tests` compares all three.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq,avx2")]
+    fn batch_avx512(
+        &self,
+        a: &ContrastStack,
+        b: &ContrastStack,
+        at: &dyn Fn(usize) -> PixelCoord,
+        out: &mut [f32],
+    ) {
+        self.batch_kernel(a, b, at, out);
+    }
+
+    /// [`Self::batch_kernel`] with 16-wide AVX-512 or 8-wide AVX2 code when the CPU has
+    /// it. All paths give bitwise-identical results (no FMA contraction), tested in
+    /// tests.rs and in `band_skip_tests` below.
     pub(super) fn batch(
         &self,
         a: &ContrastStack,
@@ -433,6 +515,17 @@ impl VisionModel {
         at: &dyn Fn(usize) -> PixelCoord,
         out: &mut [f32],
     ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("avx2")
+        {
+            // SAFETY: the CPU supports every feature the function enables (checked above).
+            unsafe { self.batch_avx512(a, b, at, out) };
+            return;
+        }
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2, checked just above (the only requirement of a
@@ -453,5 +546,219 @@ impl VisionModel {
         out: &mut [f32],
     ) {
         self.batch_kernel(a, b, at, out);
+    }
+}
+
+#[cfg(test)]
+mod band_skip_tests {
+    //! Issue #4: skipping bands whose signals are bitwise identical in both images must
+    //! not change a single distance bit.
+    use super::*;
+    use crate::raster::{Image, Rgb};
+    use crate::vision::DisplayModel;
+
+    impl VisionModel {
+        /// The issue #3 `distance8`: every band evaluated, whatever the images.
+        fn distance8_all_bands(
+            &self,
+            a: &ContrastStack,
+            b: &ContrastStack,
+            px: &[u32; LANES],
+            py: &[u32; LANES],
+        ) -> V8 {
+            let nb = self
+                .bands
+                .len()
+                .min(a.levels.len().saturating_sub(1))
+                .min(b.levels.len().saturating_sub(1));
+            let (ta, tb) = (self.taps(a, px, py), self.taps(b, px, py));
+            let mut va = [[[0f32; LANES]; 3]; MAX_BANDS];
+            let mut vb = [[[0f32; LANES]; 3]; MAX_BANDS];
+            self.contrasts8(a, &ta, &mut va);
+            self.contrasts8(b, &tb, &mut vb);
+            let (va, vb) = (&va.as_flattened()[..3 * nb], &vb.as_flattened()[..3 * nb]);
+            let mut m = [0f32; LANES];
+            for (ca, cb) in va.iter().zip(vb) {
+                for j in 0..LANES {
+                    m[j] = m[j].max((ca[j] - cb[j]).abs());
+                }
+            }
+            let inv: V8 = std::array::from_fn(|j| if m[j] > 0.0 { 1.0 / m[j] } else { 0.0 });
+            let beta = self.calib.minkowski as f32;
+            let mut s = [0f64; LANES];
+            for (ca, cb) in va.iter().zip(vb) {
+                for j in 0..LANES {
+                    let r = (ca[j] - cb[j]).abs() * inv[j];
+                    let pw = exp2(beta * log2(r.max(1e-30)));
+                    s[j] += f64::from(if r > 1e-30 { pw } else { 0.0 });
+                }
+            }
+            let inv_beta = 1.0 / beta;
+            std::array::from_fn(|j| {
+                let root = exp2(inv_beta * log2((s[j] as f32).max(1.0)));
+                if m[j] == 0.0 {
+                    0.0
+                } else if !m[j].is_finite() {
+                    f32::MAX
+                } else {
+                    m[j] * root
+                }
+            })
+        }
+    }
+
+    #[test]
+    fn unchanged_bands_are_skipped_bit_exactly() {
+        let (w, h) = (96u32, 64u32);
+        let model = VisionModel::new(
+            DisplayModel {
+                peak_luminance: 100.0,
+                black_luminance: 0.5,
+                exposure: 1.0,
+                pixels_per_degree: 28.0,
+            },
+            w,
+            h,
+        );
+        let a = Image::from_fn(w, h, |x, y| {
+            let v = 0.2 + 0.3 * ((x as f32 * 0.7).sin() * (y as f32 * 0.3).cos()).abs();
+            Rgb::new(v, v * 0.9, v * 0.7)
+        });
+        // A progressive-like successor: a small changed patch, one very bright pixel, the
+        // rest bitwise unchanged (so fine bands far from the changes are skipped).
+        let b = Image::from_fn(w, h, |x, y| {
+            let p = *a.get(x, y);
+            if (10..18).contains(&x) && (40..47).contains(&y) {
+                p * 1.7
+            } else if (x, y) == (80, 8) {
+                Rgb::new(1e6, 1e6, 1e6)
+            } else {
+                p
+            }
+        });
+        let (sa, sb) = (
+            model.decompose(&a).expect("finite"),
+            model.decompose(&b).expect("finite"),
+        );
+        let nb = model.bands.len().min(sa.levels.len() - 1);
+        let (mut skipped, mut live, mut nonzero) = (0, 0, 0);
+        for (s1, s2) in [(&sa, &sb), (&sb, &sa), (&sa, &sa)] {
+            for y in 0..h {
+                // Row groups and a scattered group (every 11th pixel of the row, wrapping).
+                for g in 0..(w as usize / LANES + 1) {
+                    let px: [u32; LANES] = if g < w as usize / LANES {
+                        std::array::from_fn(|j| (g * LANES + j) as u32)
+                    } else {
+                        std::array::from_fn(|j| (j as u32 * 11 + y) % w)
+                    };
+                    let py = [y; LANES];
+                    let got = model.distance8(s1, s2, &px, &py);
+                    let want = model.distance8_all_bands(s1, s2, &px, &py);
+                    assert_eq!(
+                        got.map(f32::to_bits),
+                        want.map(f32::to_bits),
+                        "pixels {px:?} row {y}"
+                    );
+                    nonzero += want.iter().filter(|&&d| d > 0.0).count();
+                    let t = model.taps(s1, &px, &py);
+                    let (l1, l2) = (
+                        VisionModel::fetch_levels(s1, &t),
+                        VisionModel::fetch_levels(s2, &t),
+                    );
+                    for bi in 0..nb {
+                        if same_bits(&l1[bi], &l2[bi]) && same_bits(&l1[bi + 1], &l2[bi + 1]) {
+                            skipped += 1;
+                        } else {
+                            live += 1;
+                        }
+                    }
+                }
+            }
+        }
+        // The comparison must cover both paths, and real (non-zero) distances.
+        assert!(
+            skipped > 100 && live > 100,
+            "skipped {skipped}, live {live}"
+        );
+        assert!(nonzero > 100, "{nonzero}");
+    }
+
+    #[test]
+    fn every_dispatch_path_gives_the_same_bits() {
+        // Issue #4: portable, AVX2 and AVX-512 code must agree bit for bit (the renderer's
+        // golden frames and the block map's determinism rely on it), including huge
+        // values, a 1-pixel tail and pixels outside the image.
+        let (w, h) = (45u32, 31u32);
+        let model = VisionModel::new(
+            DisplayModel {
+                peak_luminance: 100.0,
+                black_luminance: 0.5,
+                exposure: 1.0,
+                pixels_per_degree: 28.0,
+            },
+            w,
+            h,
+        );
+        let mut s = 0x2545_f491_4f6c_dd1d_u64;
+        let mut rnd = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let a = Image::from_fn(w, h, |_, _| Rgb::new(rnd(), rnd(), rnd()));
+        let b = Image::from_fn(w, h, |x, y| {
+            let p = *a.get(x, y);
+            if (x + y) % 9 == 0 {
+                Rgb::new(1e7, 0.0, 3.0)
+            } else {
+                p * (0.8 + 0.4 * rnd())
+            }
+        });
+        let (sa, sb) = (
+            model.decompose(&a).expect("finite"),
+            model.decompose(&b).expect("finite"),
+        );
+        let mut pixels: Vec<PixelCoord> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+            .collect();
+        pixels.push(PixelCoord::new(w, 0));
+        pixels.push(PixelCoord::new(3, h + 1));
+        pixels.push(PixelCoord::new(7, 7)); // odd length: a partial last group
+        let n = pixels.len();
+        let run = |f: &dyn Fn(&mut [f32])| {
+            let mut out = vec![f32::NAN; n];
+            f(&mut out);
+            out.iter().map(|d| d.to_bits()).collect::<Vec<u32>>()
+        };
+        let portable = run(&|o| model.batch_kernel(&sa, &sb, &|i| pixels[i], o));
+        let dispatched = run(&|o| model.batch(&sa, &sb, &|i| pixels[i], o));
+        assert_eq!(dispatched, portable);
+        assert_eq!(portable[n - 3], 0, "outside the image: exactly 0");
+        assert!(
+            portable
+                .iter()
+                .filter(|&&d| f32::from_bits(d) > 0.1)
+                .count()
+                > n / 2
+        );
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: AVX2 checked just above.
+                let avx2 = run(&|o| unsafe { model.batch_avx2(&sa, &sb, &|i| pixels[i], o) });
+                assert_eq!(avx2, portable);
+            }
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+                && std::arch::is_x86_feature_detected!("avx2")
+            {
+                // SAFETY: every enabled feature checked just above.
+                let wide = run(&|o| unsafe { model.batch_avx512(&sa, &sb, &|i| pixels[i], o) });
+                assert_eq!(wide, portable);
+            }
+        }
     }
 }
