@@ -177,9 +177,38 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     let ppd = scene.display.pixels_per_degree;
     let spp = scene.render.samples_per_pixel;
 
-    let t = Instant::now();
-    let reference = tracer::render_reference(&tracer, &cancel, &|_, _| {})?;
-    let reference_ms = ms(t);
+    let run_with = |scene: &Scene, opts: RenderOptions| {
+        let t = Instant::now();
+        let frame = progressive::render(scene, &tracer, &opts, &mut |_| {}, &cancel)?;
+        anyhow::Ok((frame, ms(t)))
+    };
+    let run_mode = |scene: &Scene, mode: RenderMode, max_pixels: Option<u64>| {
+        run_with(
+            scene,
+            RenderOptions {
+                mode: Some(mode),
+                max_pixels,
+                ..RenderOptions::default()
+            },
+        )
+    };
+
+    // The time ratio is the target: reference and progressive run alternately, and each
+    // time is the median of its runs (renders are deterministic, so every run gives the
+    // same image). One run of each on this noisy machine could swing the ratio by ±0.05.
+    let runs = if cfg.quick { 1 } else { TIMING_RUNS };
+    let (mut ref_times, mut prog_times) = (Vec::new(), Vec::new());
+    let mut timed = None;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let r = tracer::render_reference(&tracer, &cancel, &|_, _| {})?;
+        ref_times.push(ms(t));
+        let (f, f_ms) = run_mode(scene, RenderMode::Progressive, None)?;
+        prog_times.push(f_ms);
+        timed = Some((r, f));
+    }
+    let (reference, prog) = timed.context("at least one timing run")?;
+    let (reference_ms, prog_ms) = (median(&mut ref_times), median(&mut prog_times));
     let judge = tracer::render_reference_with(
         &tracer,
         Some((spp, scene.render.seed ^ JUDGE_SEED_OFFSET)),
@@ -229,22 +258,6 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         overhead_share: None,
     });
 
-    let run_with = |scene: &Scene, opts: RenderOptions| {
-        let t = Instant::now();
-        let frame = progressive::render(scene, &tracer, &opts, &mut |_| {}, &cancel)?;
-        anyhow::Ok((frame, ms(t)))
-    };
-    let run_mode = |scene: &Scene, mode: RenderMode, max_pixels: Option<u64>| {
-        run_with(
-            scene,
-            RenderOptions {
-                mode: Some(mode),
-                max_pixels,
-                ..RenderOptions::default()
-            },
-        )
-    };
-
     // A row for a run of the progressive loop (progressive, uncompensated, Guo).
     let loop_row = |method: &str, f: &progressive::Frame, ms: f64| -> anyhow::Result<_> {
         let st = &f.stats;
@@ -262,7 +275,6 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         })
     };
 
-    let (prog, prog_ms) = run_mode(scene, RenderMode::Progressive, None)?;
     methods.push(loop_row("progressive", &prog, prog_ms)?);
 
     // What the noise compensation buys: F&P04 exactly as published (exact-oracle assumption).
@@ -459,4 +471,13 @@ pub fn display_model(scene: &Scene) -> DisplayModel {
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// Runs of the reference and the progressive render whose median times make the ratio.
+const TIMING_RUNS: usize = 3;
+
+/// The median of a non-empty list (the upper middle of an even one).
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }

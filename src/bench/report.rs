@@ -74,8 +74,10 @@ pub fn write(
          Guo stops at the progressive run's ray count (noise twins included); uniform gets \
          the progressive run's wall time. \"FLIP vs converged\" judges the same images \
          against a render with 8× the samples (another seed): error against the picture \
-         wanted rather than against another noisy one. One render per cell, all in one run on this \
-         machine: the ratios measured side by side are the result, not the absolute times.\n",
+         wanted rather than against another noisy one. The reference and progressive times are medians of 3 \
+         alternating runs (one run in `--quick`); every other cell is one render. All in one \
+         run on this machine: the ratios measured side by side are the result, not the \
+         absolute times.\n",
         if cfg.quick { " --quick" } else { "" }
     );
     for r in results {
