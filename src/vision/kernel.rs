@@ -607,10 +607,9 @@ mod band_skip_tests {
         }
     }
 
-    #[test]
-    fn unchanged_bands_are_skipped_bit_exactly() {
-        let (w, h) = (96u32, 64u32);
-        let model = VisionModel::new(
+    /// The model both bit-exactness tests below use (a typical office display).
+    fn test_model(w: u32, h: u32) -> VisionModel {
+        VisionModel::new(
             DisplayModel {
                 peak_luminance: 100.0,
                 black_luminance: 0.5,
@@ -619,7 +618,13 @@ mod band_skip_tests {
             },
             w,
             h,
-        );
+        )
+    }
+
+    #[test]
+    fn unchanged_bands_are_skipped_bit_exactly() {
+        let (w, h) = (96u32, 64u32);
+        let model = test_model(w, h);
         let a = Image::from_fn(w, h, |x, y| {
             let v = 0.2 + 0.3 * ((x as f32 * 0.7).sin() * (y as f32 * 0.3).cos()).abs();
             Rgb::new(v, v * 0.9, v * 0.7)
@@ -689,16 +694,7 @@ mod band_skip_tests {
         // golden frames and the block map's determinism rely on it), including huge
         // values, a 1-pixel tail and pixels outside the image.
         let (w, h) = (45u32, 31u32);
-        let model = VisionModel::new(
-            DisplayModel {
-                peak_luminance: 100.0,
-                black_luminance: 0.5,
-                exposure: 1.0,
-                pixels_per_degree: 28.0,
-            },
-            w,
-            h,
-        );
+        let model = test_model(w, h);
         let mut s = 0x2545_f491_4f6c_dd1d_u64;
         let mut rnd = move || {
             s ^= s << 13;
