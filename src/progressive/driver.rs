@@ -755,47 +755,61 @@ fn noise_twin<O: PixelOracle>(
         samples: r.s.samples_per_pixel,
         seed: r.s.seed ^ TWIN_SEED,
     };
-    // The twins' vertex albedos are their own estimates' (other jitter than the firsts').
     let w = r.w as usize;
-    let mut albedo2 = r.albedo.clone();
-    let vals = match &mut albedo2 {
-        None => tracer::trace_pixels(&twin, first, cancel)?,
-        Some(a2) => {
-            let va = tracer::trace_pixels_albedo(&twin, first, cancel)?;
-            for (p, &(_, a)) in first.iter().zip(&va) {
-                a2[p.y as usize * w + p.x as usize] = a;
-            }
-            va.into_iter().map(|(v, _)| v).collect()
-        }
+    let (vals, mut twin_albedo): (Vec<Rgb>, Option<Vec<Option<Rgb>>>) = if r.albedo.is_some() {
+        let va = tracer::trace_pixels_albedo(&twin, first, cancel)?;
+        let (v, a) = va.into_iter().unzip();
+        (v, Some(a))
+    } else {
+        (tracer::trace_pixels(&twin, first, cancel)?, None)
     };
     r.it.trace_ms += t.elapsed().as_secs_f64() * 1e3;
     r.stats.noise_probe_pixels += first.len() as u64;
-    let mut rad2 = r.rad.clone();
+    let idx: Vec<usize> = first
+        .iter()
+        .map(|p| p.y as usize * w + p.x as usize)
+        .collect();
     let mut same = true;
     let mut amps = Vec::with_capacity(first.len());
-    for (p, v) in first.iter().zip(vals) {
-        let i = p.y as usize * w + p.x as usize;
-        let v = finite(v);
-        same &= v.to_array().map(f32::to_bits) == rad2[i].to_array().map(f32::to_bits);
-        let e = r.s.exposure;
-        amps.push((i, displayed_rgb(rad2[i], e) - displayed_rgb(v, e)));
-        rad2[i] = v;
-    }
+    let mut vals: Vec<Rgb> = idx
+        .iter()
+        .zip(vals)
+        .map(|(&i, v)| {
+            let v = finite(v);
+            same &= v.to_array().map(f32::to_bits) == r.rad[i].to_array().map(f32::to_bits);
+            let e = r.s.exposure;
+            amps.push((i, displayed_rgb(r.rad[i], e) - displayed_rgb(v, e)));
+            v
+        })
+        .collect();
     if same {
         return Ok((None, None));
     }
     let level = NoiseLevel::new(w, r.h as usize, &amps);
     let t = Instant::now();
+    // The twin image: the same triangulation over the twins' values (and their own vertex
+    // albedos: other jitter than the firsts'). They are swapped into the radiance and albedo
+    // buffers for the shading and swapped back, instead of copying whole-image buffers.
+    let swap_in = |r: &mut Run<'_, O>, vals: &mut [Rgb], albedo: &mut Option<Vec<Option<Rgb>>>| {
+        for (k, &i) in idx.iter().enumerate() {
+            std::mem::swap(&mut r.rad[i], &mut vals[k]);
+            if let (Some(mine), Some(theirs)) = (r.albedo.as_mut(), albedo.as_mut()) {
+                std::mem::swap(&mut mine[i], &mut theirs[k]);
+            }
+        }
+    };
+    swap_in(r, &mut vals, &mut twin_albedo);
     let mut twin_img = Image::filled(r.w, r.h, Rgb::ZERO);
     gouraud(
         tris,
         raster,
-        &rad2,
+        &r.rad,
         &r.traced,
         tri,
-        albedo2.as_deref(),
+        r.albedo.as_deref(),
         twin_img.pixels_mut(),
     );
+    swap_in(r, &mut vals, &mut twin_albedo);
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let map = judge.noise_distance(cur, &twin_img, first);
