@@ -157,17 +157,7 @@ fn progressive_frames() {
     .expect("not cancelled");
     let render_ms = t.elapsed().as_secs_f64() * 1e3;
     let (w, h) = (last.image.width(), last.image.height());
-    let d = scene.display;
-    let model = VisionModel::new(
-        DisplayModel {
-            peak_luminance: d.peak_luminance,
-            black_luminance: d.black_luminance,
-            exposure: d.exposure,
-            pixels_per_degree: d.pixels_per_degree,
-        },
-        w,
-        h,
-    );
+    let model = VisionModel::new(glimpse::progressive::display_model(&scene), w, h);
     let runs = std::env::var("GLIMPSE_VISION_BENCH_RUNS")
         .ok()
         .and_then(|v| v.parse::<u64>().ok())

@@ -7,7 +7,7 @@ use glimpse::cancel::CancelToken;
 use glimpse::metric;
 use glimpse::scene::{parse_scene, Limits, SceneOrigin};
 use glimpse::tracer::{render_reference_with, PathTracer};
-use glimpse::vision::{DisplayModel, VisionModel};
+use glimpse::vision::VisionModel;
 
 fn mean_distance_8_vs_64(file: &str, w: u32, h: u32) -> f64 {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -25,17 +25,7 @@ fn mean_distance_8_vs_64(file: &str, w: u32, h: u32) -> f64 {
     let cancel = CancelToken::new();
     let hi = render_reference_with(&tracer, Some((64, 1)), &cancel, &|_, _| {}).unwrap();
     let lo = render_reference_with(&tracer, Some((8, 2)), &cancel, &|_, _| {}).unwrap();
-    let d = scene.display;
-    let model = VisionModel::new(
-        DisplayModel {
-            peak_luminance: d.peak_luminance,
-            black_luminance: d.black_luminance,
-            exposure: d.exposure,
-            pixels_per_degree: d.pixels_per_degree,
-        },
-        w,
-        h,
-    );
+    let model = VisionModel::new(glimpse::progressive::display_model(&scene), w, h);
     let (a, b) = (model.decompose(&hi).unwrap(), model.decompose(&lo).unwrap());
     metric::full_map(&model, &a, &b).mean()
 }

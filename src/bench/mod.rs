@@ -22,11 +22,12 @@ pub mod report;
 
 use crate::cancel::CancelToken;
 use crate::metric::{self, MetricParams};
+pub use crate::progressive::display_model;
 use crate::progressive::{self, uniform, RenderOptions};
 use crate::raster::LinearImage;
 use crate::scene::{parse_scene, Limits, RenderMode, Scene, SceneOrigin};
 use crate::tracer::{self, PathTracer};
-use crate::vision::{DisplayModel, VisionModel};
+use crate::vision::VisionModel;
 use anyhow::Context;
 use flip::{flip, FlipScore};
 use serde::Serialize;
@@ -455,18 +456,6 @@ fn write_images(
         .with_context(|| format!("cannot write {}", p.display()))?;
     }
     Ok(())
-}
-
-/// The vision model's view of the scene's display (scene-format.md `display`).
-#[must_use]
-pub fn display_model(scene: &Scene) -> DisplayModel {
-    let d = scene.display;
-    DisplayModel {
-        peak_luminance: d.peak_luminance,
-        black_luminance: d.black_luminance,
-        exposure: d.exposure,
-        pixels_per_degree: d.pixels_per_degree,
-    }
 }
 
 fn ms(t: Instant) -> f64 {

@@ -383,8 +383,6 @@ pub fn run<O: PixelOracle>(
     // §4.1: object ids (one primary ray per pixel), contour map, first sample set.
     let t = Instant::now();
     let ids: Image<ObjectId> = tracer::object_id_map(oracle);
-    // Textured scenes only: the texture's detail comes from this map (mesh.rs `gouraud`).
-    r.albedo = tracer::texture_albedo_map(oracle);
     let seeds = initial_samples(&ids, s.initial_rate, s.seed);
     r.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
 
@@ -396,6 +394,11 @@ pub fn run<O: PixelOracle>(
         let image = Image::from_fn(w, h, |x, y| r.rad[y as usize * w as usize + x as usize]);
         return emit_only(&mut r, image, Some("no_triangles"), on_frame);
     }
+    // Textured scenes only: the texture's detail comes from this map (mesh.rs `gouraud`);
+    // part of the analysis, like the object ids.
+    let t = Instant::now();
+    r.albedo = tracer::texture_albedo_map(oracle);
+    r.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
 
     let seed_idx: Vec<usize> = seeds
         .iter()

@@ -140,17 +140,10 @@ pub fn render(
         RenderMode::Reference => render_reference(scene, oracle, on_frame, cancel),
         RenderMode::Progressive => {
             let settings = settings(scene, opts, driver::Oracle::Perceptual);
-            let d = &scene.display;
-            let display = DisplayModel {
-                peak_luminance: d.peak_luminance,
-                black_luminance: d.black_luminance,
-                exposure: d.exposure,
-                pixels_per_degree: d.pixels_per_degree,
-            };
             // The oracle's size is authoritative (it is what gets traced).
             let (w, h) = oracle.size();
             let mut judge = driver::VisionJudge::new(
-                VisionModel::new(display, w, h),
+                VisionModel::new(display_model(scene), w, h),
                 scene.progressive.homogeneity,
                 scene.progressive.epsilon,
                 scene.render.seed,
@@ -161,6 +154,19 @@ pub fn render(
             let settings = settings(scene, opts, driver::Oracle::Guo);
             driver::run(oracle, &settings, &mut NoJudge, on_frame, cancel)
         }
+    }
+}
+
+/// The vision model's view of the scene's display (scene-format.md `display`): what the
+/// perceptual judge, the bench's metric column and the tests calibrate the model with.
+#[must_use]
+pub fn display_model(scene: &Scene) -> DisplayModel {
+    let d = scene.display;
+    DisplayModel {
+        peak_luminance: d.peak_luminance,
+        black_luminance: d.black_luminance,
+        exposure: d.exposure,
+        pixels_per_degree: d.pixels_per_degree,
     }
 }
 

@@ -80,18 +80,7 @@ pub fn texture_albedo_map(oracle: &impl PixelOracle) -> Option<Vec<Option<Rgb>>>
     if !oracle.has_textures() {
         return None;
     }
-    let (w, h) = oracle.size();
-    Some(
-        (0..w as usize * h as usize)
-            .into_par_iter()
-            .map(|i| {
-                oracle.texture_albedo(PixelCoord::new(
-                    (i % w as usize) as u32,
-                    (i / w as usize) as u32,
-                ))
-            })
-            .collect(),
-    )
+    Some(every_pixel(oracle, |p| oracle.texture_albedo(p)))
 }
 
 /// Pixels are traced in batches of this many; cancellation is checked between batches.
@@ -187,16 +176,21 @@ pub fn render_reference_with(
 #[must_use]
 pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     let (w, h) = oracle.size();
-    let data: Vec<ObjectId> = (0..w as usize * h as usize)
-        .into_par_iter()
-        .map(|i| {
-            oracle.object_id(PixelCoord::new(
-                (i % w as usize) as u32,
-                (i / w as usize) as u32,
-            ))
-        })
-        .collect();
+    let data = every_pixel(oracle, |p| oracle.object_id(p));
     Image::from_vec(w, h, data).expect("size matches by construction")
+}
+
+/// `f` at every pixel of the oracle's image, row-major, in parallel.
+fn every_pixel<T: Send>(
+    oracle: &impl PixelOracle,
+    f: impl Fn(PixelCoord) -> T + Sync + Send,
+) -> Vec<T> {
+    let w = oracle.size().0 as usize;
+    let n = w * oracle.size().1 as usize;
+    (0..n)
+        .into_par_iter()
+        .map(|i| f(PixelCoord::new((i % w) as u32, (i / w) as u32)))
+        .collect()
 }
 
 /// What a prepared scene contains, decided once in [`PathTracer::new`] so that a scene
@@ -391,7 +385,8 @@ impl PathTracer {
         seed: u64,
     ) -> (Rgb, Option<Rgb>) {
         let mut sum = Vec3::ZERO;
-        let mut albedo = Some(Vec3::ZERO);
+        // Without ALBEDO it stays `None` (nothing summed).
+        let mut albedo = ALBEDO.then_some(Vec3::ZERO);
         let mut kept = 0u32;
         for i in 0..samples {
             let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
@@ -414,7 +409,7 @@ impl PathTracer {
         if kept == 0 {
             return (Rgb::ZERO, None);
         }
-        let albedo = albedo.filter(|_| ALBEDO).map(|s| s / kept as f32);
+        let albedo = albedo.map(|s| s / kept as f32);
         let mean = sum / kept as f32;
         // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
         if mean.is_finite() {
