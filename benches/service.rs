@@ -13,6 +13,14 @@
 //!    directly on the same scene in the same process, alternating the two, medians
 //!    compared (target < 5 %). The overhead covers HTTP, validation, the store, PNG
 //!    encoding of the frames, the final files and the streaming.
+//!
+//! Like with like: both sides parse the same document under the same limits, build the
+//! same `PathTracer` and call `progressive::render` with `RenderOptions::default()` on
+//! rayon's global pool (the service's worker thread uses it too: no pool of its own).
+//! Each run is preceded by 150 ms of idleness, so the service's work after a `done` (the
+//! secondary layers and the EXR, written after it) never lands in the next direct run.
+//! The render's own `total_ms` is printed for both sides: the gap between them is what
+//! the service's concurrent work (frame encoding, streaming) costs the render itself.
 
 use futures_util::StreamExt;
 use glimpse::progressive::{self, RenderOptions};
@@ -158,7 +166,12 @@ fn main() {
         let mut served = Vec::new();
         let mut frames_seen = 0;
         let mut job_total = Vec::new();
+        let mut direct_total = Vec::new();
         for _ in 0..runs {
+            // An idle moment before each pair: the service writes a job's secondary files
+            // (other layers, EXR) after its `done`, and that work must not land inside the
+            // next direct run (it would slow the direct render and flatter the service).
+            tokio::time::sleep(Duration::from_millis(150)).await;
             let text2 = text.clone();
             let d = tokio::task::spawn_blocking(move || {
                 let t0 = Instant::now();
@@ -167,19 +180,24 @@ fn main() {
                 let cancel = glimpse::cancel::CancelToken::new();
                 let f = progressive::render(&sc, &tracer, &RenderOptions::default(), &mut |_| {}, &cancel)
                     .expect("render");
-                (t0.elapsed().as_secs_f64() * 1e3, f.iteration)
+                (t0.elapsed().as_secs_f64() * 1e3, f.stats.total_ms)
             })
             .await
             .expect("join");
             direct.push(d.0);
+            tokio::time::sleep(Duration::from_millis(150)).await;
             let t0 = Instant::now();
             let id = submit(&c, &base, &doc).await;
             let mut ws = connect(addr, &id).await;
             let (t1, frames, total) = until_done(&mut ws).await;
             served.push((t1 - t0).as_secs_f64() * 1e3);
+            // An idle moment after it too: the work the service does after `done` (the
+            // secondary files) must finish before the next direct run starts.
+            drop(ws);
+            tokio::time::sleep(Duration::from_millis(150)).await;
             frames_seen = frames;
             job_total.push(total);
-            let _ = d.1;
+            direct_total.push(d.1);
         }
         let (md, ms) = (median(direct.clone()), median(served.clone()));
         println!("glimpse service bench: {size}x{size} progressive, spp 16, {runs} runs, 1 worker");
@@ -196,8 +214,18 @@ fn main() {
         println!(
             "through the service (POST -> done, streaming every frame): median {ms:.1} ms  {:?}; last job streamed {frames_seen} frames; job total_ms median {:.1}",
             served.iter().map(|v| v.round()).collect::<Vec<_>>(),
-            median(job_total)
+            median(job_total.clone())
         );
+        println!(
+            "render's own total_ms (progressive stats): direct median {:.1}, in the service {:.1} (what the service's concurrent work costs the render itself)",
+            median(direct_total.clone()),
+            median(job_total.clone())
+        );
+        // Per service run, its wall time minus its own render's total_ms: what the service
+        // adds outside the render (HTTP, store, files, streaming) — the same job on both
+        // sides of the subtraction, so the render's run-to-run noise cancels.
+        let outside = median(served.iter().zip(&job_total).map(|(s, t)| s - t).collect());
+        println!("outside the render (POST -> done minus the job's own total_ms): median {outside:.1} ms");
         println!("service overhead: {:+.2} % of render time, ratio of medians (target < 5 %)", (ms - md) / md * 100.0);
         // Each service run follows its direct run: the median of the per-pair ratios
         // cancels the machine's drift better than the ratio of the two medians.

@@ -927,3 +927,78 @@ async fn many_watchers_share_one_job() {
     ws.send(Message::Close(None)).await.unwrap();
     s.stop().await.unwrap();
 }
+
+/// The files beside a finished job are written after its `done` (only the image and the
+/// record must be on disk before it): a client asking for any layer the moment `done`
+/// arrives still gets it complete, and a DELETE at once removes everything.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_layer_asked_right_after_done_is_complete_and_delete_at_once_is_clean() {
+    let s = Server::start(|_| {}).await;
+    let (w, h) = (48, 32);
+    let id = s.submit(&scene(w, h, "progressive", 4)).await;
+    let mut ws = ws_connect(&s, &id, None).await;
+    let mut last_png = Vec::new();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
+    loop {
+        let m = tokio::time::timeout_at(deadline, ws.next())
+            .await
+            .expect("no done in time")
+            .expect("stream ended before done")
+            .unwrap();
+        match m {
+            Message::Binary(b) => last_png = b.to_vec(),
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t).unwrap();
+                assert_ne!(v["type"], "error", "{v}");
+                if v["type"] == "done" {
+                    assert_eq!(v["job"]["state"], "succeeded", "{v}");
+                    break;
+                }
+            }
+            _ => {}
+        }
+    }
+    // All at once, right after `done`.
+    let queries = [
+        "layer=image",
+        "layer=samples",
+        "layer=distance",
+        "layer=classes",
+        "format=exr",
+    ];
+    let gets = queries.map(|q| {
+        s.client
+            .get(s.url(&format!("/v1/jobs/{id}/frame?{q}")))
+            .send()
+    });
+    let answers = futures_util::future::join_all(gets).await;
+    for (q, r) in queries.iter().zip(answers) {
+        let r = r.unwrap();
+        assert_eq!(r.status(), 200, "{q}");
+        let b = r.bytes().await.unwrap();
+        let img = glimpse::raster::decode_image(&b).unwrap();
+        assert_eq!((img.width(), img.height()), (w, h), "{q}");
+        if *q == "layer=image" {
+            assert_eq!(
+                b.to_vec(),
+                last_png,
+                "the streamed final frame is the stored one"
+            );
+        }
+    }
+    let r = s
+        .client
+        .delete(s.url(&format!("/v1/jobs/{id}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 204);
+    let r = s
+        .client
+        .get(s.url(&format!("/v1/jobs/{id}/frame?layer=samples")))
+        .send()
+        .await
+        .unwrap();
+    error_of(r, 404, "not_found").await;
+    s.stop().await.unwrap();
+}

@@ -472,25 +472,29 @@ async fn create_job(
     } else {
         scene.name.clone()
     };
-    let job = st.jobs.submit(&name, &text).await.map_err(|e| match e {
-        SubmitError::QueueFull(n) => {
-            let mut err = ApiError::new(
-                ErrorCode::QueueFull,
-                format!("the queue is full ({n} jobs waiting); retry later"),
-            );
-            err.retry_after_s = Some(retry_after(n));
-            err
-        }
-        SubmitError::ShuttingDown => {
-            let mut err = ApiError::new(
-                ErrorCode::Unavailable,
-                "the server is shutting down; retry later",
-            );
-            err.retry_after_s = Some(5);
-            err
-        }
-        SubmitError::Store(e) => ApiError::internal("storing the job", &e),
-    })?;
+    let job = st
+        .jobs
+        .submit_parsed(&name, &text, Some(scene))
+        .await
+        .map_err(|e| match e {
+            SubmitError::QueueFull(n) => {
+                let mut err = ApiError::new(
+                    ErrorCode::QueueFull,
+                    format!("the queue is full ({n} jobs waiting); retry later"),
+                );
+                err.retry_after_s = Some(retry_after(n));
+                err
+            }
+            SubmitError::ShuttingDown => {
+                let mut err = ApiError::new(
+                    ErrorCode::Unavailable,
+                    "the server is shutting down; retry later",
+                );
+                err.retry_after_s = Some(5);
+                err
+            }
+            SubmitError::Store(e) => ApiError::internal("storing the job", &e),
+        })?;
     let mut headers = HeaderMap::new();
     if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
         headers.insert(header::LOCATION, v);

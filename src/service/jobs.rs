@@ -129,8 +129,11 @@ impl Queue {
 // ---------------------------------------------------------------------------------------
 // Live state
 
-/// One frame as the stream serves it. The PNG of the image layer is encoded at most once
-/// (lazily, on the blocking pool, only if someone watches) and shared by every watcher.
+/// One frame as the stream serves it. The PNG of the image layer is encoded at most once,
+/// lazily, only when someone takes it (a watcher, `GET .../frame`, or the final file),
+/// and shared by all of them: a frame that nobody watches costs the render nothing but
+/// its copy, and a watcher that falls behind skips to the newest frame (the `watch`
+/// channel), so the encoder never works on frames nobody will see.
 pub struct LiveFrame {
     pub frame: Frame,
     /// The scene's display exposure, for the `image` layer.
@@ -138,11 +141,14 @@ pub struct LiveFrame {
     pub progress: Value,
     /// The layers this frame has (`distance` is absent in reference mode).
     pub layers: Vec<&'static str>,
-    png: tokio::sync::OnceCell<Bytes>,
+    /// A std `OnceLock` (not tokio's `OnceCell`) so the worker thread can wait for the
+    /// encoding a watcher already started instead of encoding the final frame twice.
+    png: std::sync::OnceLock<Result<Bytes, String>>,
+    metrics: Arc<Metrics>,
 }
 
 impl LiveFrame {
-    fn new(frame: Frame, exposure: f32, progress: Value) -> Self {
+    fn new(frame: Frame, exposure: f32, progress: Value, metrics: Arc<Metrics>) -> Self {
         let layers = layers::LAYERS
             .into_iter()
             .filter(|l| *l != "distance" || frame.distance.is_some())
@@ -152,25 +158,33 @@ impl LiveFrame {
             exposure,
             progress,
             layers,
-            png: tokio::sync::OnceCell::new(),
+            png: std::sync::OnceLock::new(),
+            metrics,
         }
     }
 
     /// The PNG of the image layer, encoded once, off the async runtime.
     pub async fn image_png(self: &Arc<Self>) -> Result<Bytes, String> {
-        self.png
-            .get_or_try_init(|| {
-                let me = Arc::clone(self);
-                async move {
-                    tokio::task::spawn_blocking(move || me.encode_layer_blocking("image"))
-                        .await
-                        .map_err(|e| format!("encoder stopped: {e}"))?
-                        .and_then(|o| o.ok_or_else(|| "no image layer".to_owned()))
-                        .map(Bytes::from)
-                }
-            })
+        if let Some(r) = self.png.get() {
+            return r.clone();
+        }
+        let me = Arc::clone(self);
+        tokio::task::spawn_blocking(move || me.image_png_blocking())
             .await
-            .cloned()
+            .map_err(|e| format!("encoder stopped: {e}"))?
+    }
+
+    /// The PNG of the image layer, encoded once (waits if another thread is encoding it).
+    /// Blocking.
+    pub fn image_png_blocking(&self) -> Result<Bytes, String> {
+        self.png
+            .get_or_init(|| {
+                self.metrics.frames_encoded.fetch_add(1, Ordering::Relaxed);
+                self.encode_layer_blocking("image")?
+                    .map(Bytes::from)
+                    .ok_or_else(|| "no image layer".to_owned())
+            })
+            .clone()
     }
 
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
@@ -186,13 +200,22 @@ pub struct Snapshot {
     pub frame: Option<Arc<LiveFrame>>,
 }
 
-/// A job that is queued or running (finished jobs live only in the store).
+/// A job that is queued or running, or finished but still writing its secondary files
+/// (after that, finished jobs live only in the store).
 pub struct LiveJob {
     pub id: Uuid,
     pub cancel: CancelToken,
     /// Set by `POST .../cancel`; a cancel without it is a shutdown (the job is requeued).
     user_cancelled: AtomicBool,
     pub tx: watch::Sender<Arc<Snapshot>>,
+    /// True once the worker is done with the job, files included (DELETE waits for it,
+    /// so it never races the late writes).
+    settled: watch::Sender<bool>,
+    /// The scene as the submission validated it, so the worker does not read the
+    /// document back from the store and parse it a second time (for an 8 MiB mesh that
+    /// is most of a second before the render starts). `None` for jobs recovered at
+    /// start-up: they are read and parsed from the store.
+    parsed: Mutex<Option<crate::scene::Scene>>,
 }
 
 impl LiveJob {
@@ -206,6 +229,8 @@ impl LiveJob {
             cancel: CancelToken::new(),
             user_cancelled: AtomicBool::new(false),
             tx,
+            settled: watch::Sender::new(false),
+            parsed: Mutex::new(None),
         })
     }
 
@@ -388,7 +413,12 @@ struct Inner {
     rt: tokio::runtime::Handle,
     shutting_down: AtomicBool,
     workers: Mutex<Vec<std::thread::JoinHandle<()>>>,
+    /// Test hook, called by the worker between a job's `done` and its late file writes
+    /// (to hold it there and look at what a crash at that point would leave).
+    after_done: Mutex<Option<AfterDoneHook>>,
 }
+
+type AfterDoneHook = Arc<dyn Fn(Uuid) + Send + Sync>;
 
 /// Handle to the job machinery (cheap to clone; shared by every request handler).
 #[derive(Clone)]
@@ -437,6 +467,7 @@ impl Jobs {
             rt: tokio::runtime::Handle::current(),
             shutting_down: AtomicBool::new(false),
             workers: Mutex::new(Vec::new()),
+            after_done: Mutex::new(None),
         });
         for id in &recovered {
             if let Some(rec) = store.get(*id).await? {
@@ -483,6 +514,17 @@ impl Jobs {
     /// Accepts a validated document: the record is committed before this returns
     /// (so the caller's 201 is durable), then the job is queued.
     pub async fn submit(&self, name: &str, scene_json: &str) -> Result<JobRecord, SubmitError> {
+        self.submit_parsed(name, scene_json, None).await
+    }
+
+    /// [`Self::submit`] with the scene `scene_json` parses to (under [`Self::limits`]),
+    /// handed to the worker as it is.
+    pub async fn submit_parsed(
+        &self,
+        name: &str,
+        scene_json: &str,
+        parsed: Option<crate::scene::Scene>,
+    ) -> Result<JobRecord, SubmitError> {
         let inner = &self.inner;
         if inner.shutting_down.load(Ordering::SeqCst) {
             return Err(SubmitError::ShuttingDown);
@@ -498,7 +540,14 @@ impl Jobs {
                 return Err(e.into());
             }
         };
-        lock(&inner.live).insert(id, LiveJob::new(rec.clone()));
+        let live = LiveJob::new(rec.clone());
+        // Keep the parsed scene only if no job is waiting: then this one starts as soon
+        // as a worker is free, and at most one parsed scene waits in memory (a parsed
+        // million-triangle mesh is ~100 MB; 64 queued ones must not all be held).
+        if inner.queue.is_empty() {
+            *lock(&live.parsed) = parsed;
+        }
+        lock(&inner.live).insert(id, live);
         inner.queue.push_reserved(id);
         inner.metrics.jobs_submitted.fetch_add(1, Ordering::Relaxed);
         // One log line per state transition, keyed by `id` (issue #6, operations).
@@ -571,6 +620,13 @@ impl Jobs {
         if !rec.state.is_finished() {
             return Ok(DeleteOutcome::NotFinished(Box::new(rec)));
         }
+        // Finished but still live: its worker is writing the secondary files. Let it
+        // finish, or they would land in a folder we just removed.
+        if let Some(live) = self.live(id) {
+            let mut settled = live.settled.subscribe();
+            drop(live);
+            let _ = settled.wait_for(|s| *s).await;
+        }
         if self.inner.store.delete_finished(id).await? {
             Ok(DeleteOutcome::Deleted)
         } else {
@@ -611,13 +667,18 @@ fn worker_loop(inner: &Arc<Inner>) {
         if live.cancel.is_cancelled() {
             continue; // cancelled while queued (the store already says so)
         }
-        let started = match inner.rt.block_on(inner.store.mark_running(id)) {
-            Ok(Some(s)) => s,
-            Ok(None) => continue,
-            Err(e) => {
-                tracing::error!(%id, "cannot start job: {e}");
-                continue;
-            }
+        // `running` is committed while the render starts, not before: the record need
+        // not be durable (recovery turns `running` back into `queued` anyway), and the
+        // commit's sync (0.6-4 ms on the test machine) would delay every job. `run_job` waits for it before any
+        // other write of the job, and drops the job if it had left `queued` meanwhile (a
+        // cancel that won the race; its token is already cancelled, so the render stops
+        // at once).
+        let started = store::now_rfc3339();
+        let marked = {
+            let (store, started) = (inner.store.clone(), started.clone());
+            inner
+                .rt
+                .spawn(async move { store.mark_running_at(id, &started).await })
         };
         let mut job = live.snapshot().job.clone();
         job.state = JobState::Running;
@@ -625,9 +686,31 @@ fn worker_loop(inner: &Arc<Inner>) {
         live.publish(job.clone(), None);
         tracing::info!(%id, state = "running", "job started");
         inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
-        run_job(inner, &live, job);
+        run_job(inner, &live, job, marked);
         inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
         lock(&inner.live).remove(&id);
+        live.settled.send_replace(true);
+    }
+}
+
+/// Waits for the `running` commit started by the worker loop; false if the job must not
+/// be written any more (it had left `queued`, or the store failed).
+fn wait_marked(
+    inner: &Inner,
+    id: Uuid,
+    marked: tokio::task::JoinHandle<Result<bool, StoreError>>,
+) -> bool {
+    match inner.rt.block_on(marked) {
+        Ok(Ok(true)) => true,
+        Ok(Ok(false)) => false,
+        Ok(Err(e)) => {
+            tracing::error!(%id, "cannot start job: {e}");
+            false
+        }
+        Err(e) => {
+            tracing::error!(%id, "cannot start job: {e}");
+            false
+        }
     }
 }
 
@@ -647,16 +730,34 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
+fn run_job(
+    inner: &Arc<Inner>,
+    live: &Arc<LiveJob>,
+    mut job: JobRecord,
+    marked: tokio::task::JoinHandle<Result<bool, StoreError>>,
+) {
     let id = live.id;
     let start = Instant::now();
-    let scene_json = match inner.rt.block_on(inner.store.scene(id)) {
-        Ok(Some(s)) => s,
-        Ok(None) => return, // deleted under us: nothing to run
-        Err(e) => {
-            tracing::error!(%id, "cannot read scene: {e}");
-            return;
-        }
+    let parsed = lock(&live.parsed).take();
+    let scene_json = match parsed {
+        Some(_) => String::new(),
+        None => match inner.rt.block_on(inner.store.scene(id)) {
+            Ok(Some(s)) => s,
+            Ok(None) => return, // deleted under us: nothing to run
+            Err(e) => {
+                tracing::error!(%id, "cannot read scene: {e}");
+                return;
+            }
+        },
+    };
+    // The job's folder and its (empty) final image file are made durable while the job
+    // renders, off the path between the render's end and `done` (store.rs).
+    let job_dir = inner.store.job_dir(id);
+    let prepared = {
+        let dir = job_dir.clone();
+        inner
+            .rt
+            .spawn_blocking(move || store::prepare_job_dir_blocking(&dir))
     };
     let mut latest: Option<Arc<LiveFrame>> = None;
     let mut exposure = 1.0f32;
@@ -664,7 +765,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     // Render time is counted as it passes (per frame), so the counter moves during long jobs.
     let mut counted_s = 0.0f64;
     let outcome = catch_unwind(AssertUnwindSafe(|| {
-        let scene = match parse_scene(&scene_json, &SceneOrigin::Request, &inner.limits) {
+        let scene = match parsed.map_or_else(
+            || parse_scene(&scene_json, &SceneOrigin::Request, &inner.limits),
+            Ok,
+        ) {
             Ok(s) => s,
             Err(e) => {
                 // Accepted earlier, refused now (limits changed across a restart).
@@ -687,7 +791,14 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             let now_s = elapsed / 1e3;
             inner.metrics.add_render_seconds(now_s - counted_s);
             counted_s = now_s;
-            let lf = Arc::new(LiveFrame::new(f.clone(), exposure, progress.clone()));
+            // The copy (0.1-0.4 ms at 512²) is the only per-frame cost on the render's
+            // thread; the PNG is encoded later, only if someone takes this frame.
+            let lf = Arc::new(LiveFrame::new(
+                f.clone(),
+                exposure,
+                progress.clone(),
+                Arc::clone(&inner.metrics),
+            ));
             latest = Some(Arc::clone(&lf));
             let mut j = job.clone();
             j.progress = Some(progress);
@@ -708,6 +819,19 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     inner
         .metrics
         .add_render_seconds(start.elapsed().as_secs_f64() - counted_s);
+    let prepared = match inner.rt.block_on(prepared) {
+        Ok(r) => r.map_err(|e| e.to_string()),
+        Err(e) => Err(e.to_string()),
+    };
+    if let Err(e) = &prepared {
+        // Not fatal: the final image then goes through temp file + rename + folder sync.
+        tracing::warn!(%id, "cannot prepare the job folder: {e}");
+    }
+    if !wait_marked(inner, id, marked) {
+        // Cancelled while still `queued` in the store: that cancel already recorded it.
+        remove_placeholder(&job_dir);
+        return;
+    }
 
     let (state, stats, error, final_frame) = match outcome {
         Outcome::Done(f) => {
@@ -717,7 +841,12 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             let lf = match latest.take() {
                 // The callback already saw this final frame: reuse it (and its PNG).
                 Some(l) if l.frame.iteration == f.iteration && l.frame.last => l,
-                _ => Arc::new(LiveFrame::new(*f, exposure, progress)),
+                _ => Arc::new(LiveFrame::new(
+                    *f,
+                    exposure,
+                    progress,
+                    Arc::clone(&inner.metrics),
+                )),
             };
             (JobState::Succeeded, stats, None, Some(lf))
         }
@@ -735,16 +864,22 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         Outcome::Failed(err) => (JobState::Failed, None, Some(err), latest.take()),
     };
 
-    // Keep the last frame on disk (latest frame of a cancelled job included).
+    // What `done` promises (service-api.md "Durability": a finished job keeps its state,
+    // statistics and final image) is on disk before `done` is published: the image
+    // layer's PNG (usually already encoded for the watchers), then the record. The other
+    // layers and the EXR follow (`write_secondary_files`); until they are written the job
+    // stays live, so `GET .../frame` serves any layer complete from memory meanwhile.
     let mut has_frame = false;
     if let Some(lf) = &final_frame {
-        match save_frame(&inner.store, id, lf) {
-            Ok(png) => {
-                let _ = lf.png.set(Bytes::from(png));
-                has_frame = true;
-            }
+        match lf.image_png_blocking().and_then(|png| {
+            store::write_final_image_blocking(&job_dir, &png).map_err(|e| e.to_string())
+        }) {
+            Ok(()) => has_frame = true,
             Err(e) => tracing::error!(%id, "cannot store the final frame: {e}"),
         }
+    }
+    if !has_frame {
+        remove_placeholder(&job_dir);
     }
     let progress = final_frame
         .as_ref()
@@ -772,16 +907,38 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     job.stats = stats;
     job.error = error;
     job.has_frame = has_frame;
-    live.publish(job, final_frame);
+    live.publish(job, final_frame.clone());
+
+    let hook = lock(&inner.after_done).clone();
+    if let Some(hook) = hook {
+        hook(id);
+    }
+    if let (true, Some(lf)) = (has_frame, &final_frame) {
+        if let Err(e) = write_secondary_files(&job_dir, lf) {
+            tracing::error!(%id, "cannot store the frame's other layers: {e}");
+        }
+    }
 }
 
-/// Encodes every layer and the EXR and writes them under `jobs/<id>/`; returns the PNG of
-/// the image layer (reused by the streams). The encodings are independent and run in
-/// parallel: they sit between the end of the render and the job's `done`.
-fn save_frame(store: &Store, id: Uuid, lf: &LiveFrame) -> Result<Vec<u8>, String> {
+/// Best effort: the empty final-image file (and then the empty folder) of a job that
+/// ends without a frame.
+fn remove_placeholder(dir: &std::path::Path) {
+    let _ = std::fs::remove_file(dir.join(store::FINAL_IMAGE_FILE));
+    let _ = std::fs::remove_dir(dir);
+}
+
+/// Encodes the final frame's layers other than the image, and the EXR, and writes them
+/// beside the image (atomically, synced). Runs after `done`: nothing the durability
+/// contract names depends on them, and they cost ~7 ms of CPU at 512² (4 ms of it the
+/// distance colour map) and four file syncs plus the folder's, which used to sit between
+/// the render's end and `done` (with the old EXR encoder, 24-28 ms in all). A crash before they are written
+/// leaves a finished job whose `GET .../frame?layer=samples` (etc.) answers 404
+/// "no samples layer" while its image, state and statistics are intact.
+fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), String> {
     use rayon::prelude::*;
     let encoded: Vec<(String, Vec<u8>)> = layers::LAYERS
         .par_iter()
+        .filter(|&&layer| layer != "image")
         .map(|&layer| Some(layer))
         .chain(rayon::iter::once(None)) // None: the EXR
         .map(|layer| -> Result<Option<(String, Vec<u8>)>, String> {
@@ -789,22 +946,14 @@ fn save_frame(store: &Store, id: Uuid, lf: &LiveFrame) -> Result<Vec<u8>, String
                 let exr = crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string())?;
                 return Ok(Some(("image.exr".to_owned(), exr)));
             };
-            let png = match lf.png.get() {
-                Some(b) if layer == "image" => Some(b.to_vec()),
-                _ => lf.encode_layer_blocking(layer)?,
-            };
+            let png = lf.encode_layer_blocking(layer)?;
             Ok(png.map(|p| (format!("{layer}.png"), p)))
         })
         .collect::<Result<Vec<_>, String>>()?
         .into_iter()
         .flatten()
         .collect();
-    store::write_files_blocking(&store.job_dir(id), &encoded).map_err(|e| e.to_string())?;
-    encoded
-        .into_iter()
-        .find(|(name, _)| name == "image.png")
-        .map(|(_, png)| png)
-        .ok_or_else(|| "no image layer".to_owned())
+    store::write_files_blocking(dir, &encoded).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -899,6 +1048,170 @@ mod tests {
         f.classes = Image::filled(scene.width, scene.height, ClassCell::None);
         on_frame(&f);
         panic!("boom in the tracer");
+    }
+
+    /// Five frames of a 8×6 image, the last one final, with every layer.
+    fn five_frames(
+        scene: &crate::scene::Scene,
+        on_frame: &mut dyn FnMut(&Frame),
+        _cancel: &CancelToken,
+    ) -> Result<Frame, crate::cancel::Cancelled> {
+        let mut f = frame(0, 2.0, false);
+        for k in 0..5u32 {
+            f = frame(k, 2.0 / f64::from(k + 1), k == 4);
+            f.image = Image::from_fn(scene.width, scene.height, |x, y| {
+                Rgb::new(x as f32 / 8.0, y as f32 / 6.0, k as f32 / 4.0)
+            });
+            f.samples = Image::filled(scene.width, scene.height, SampleCell::Traced);
+            f.classes = Image::filled(scene.width, scene.height, ClassCell::Smooth);
+            f.distance = Some(Image::filled(scene.width, scene.height, 0.5));
+            on_frame(&f);
+        }
+        Ok(f)
+    }
+
+    const SMALL: &str = r#"{"version": 1, "image": {"width": 8, "height": 6},
+        "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40},
+        "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+        "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "w"}]}"#;
+
+    async fn start_five(dir: &std::path::Path) -> (Jobs, Arc<Metrics>) {
+        let metrics = Arc::new(Metrics::default());
+        let store = Store::open(dir).await.unwrap();
+        let jobs = Jobs::start_with(
+            store,
+            crate::service::server_limits(),
+            1,
+            4,
+            Arc::clone(&metrics),
+            five_frames,
+        )
+        .await
+        .unwrap();
+        (jobs, metrics)
+    }
+
+    /// Waits until the worker is done with the job, secondary files included.
+    async fn settled(jobs: &Jobs, id: Uuid) -> JobRecord {
+        let deadline = Instant::now() + std::time::Duration::from_secs(10);
+        while jobs.live(id).is_some() {
+            assert!(Instant::now() < deadline, "job never settled");
+            tokio::time::sleep(std::time::Duration::from_millis(2)).await;
+        }
+        jobs.get(id).await.unwrap().unwrap()
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn frames_nobody_watches_are_never_encoded_and_every_file_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let (jobs, metrics) = start_five(dir.path()).await;
+        let id = jobs.submit("quiet", SMALL).await.unwrap().id;
+        let j = settled(&jobs, id).await;
+        assert_eq!(j.state, JobState::Succeeded);
+        // Five frames, no watcher: only the final one was encoded, for its file.
+        assert_eq!(metrics.frames_encoded.load(Ordering::Relaxed), 1);
+        let store = jobs.store();
+        for layer in store::LAYER_FILES {
+            let png = std::fs::read(store.layer_path(id, layer, false).unwrap()).unwrap();
+            let img = crate::raster::decode_image(&png).unwrap();
+            assert_eq!((img.width(), img.height()), (8, 6), "{layer}");
+        }
+        let exr = std::fs::read(store.layer_path(id, "image", true).unwrap()).unwrap();
+        let img = crate::raster::decode_image(&exr).unwrap();
+        // The last frame's linear values (k = 4: blue 1.0), not an earlier frame's.
+        assert_eq!(img.get(7, 5).z, 1.0);
+        assert_eq!(img.get(4, 3).x, 0.5);
+        // Per job, not per frame: a second unwatched job adds one encoding.
+        let id = jobs.submit("watched", SMALL).await.unwrap().id;
+        settled(&jobs, id).await;
+        assert_eq!(metrics.frames_encoded.load(Ordering::Relaxed), 2);
+        jobs.shutdown().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn done_is_durable_before_the_late_writes_which_get_and_delete_wait_for() {
+        let dir = tempfile::tempdir().unwrap();
+        let (jobs, _) = start_five(dir.path()).await;
+        // Hold the worker between `done` and the secondary files.
+        let (at_hook_tx, at_hook_rx) = std::sync::mpsc::channel::<Uuid>();
+        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+        let release_rx = Mutex::new(release_rx);
+        let at_hook_tx = Mutex::new(at_hook_tx);
+        *lock(&jobs.inner.after_done) = Some(Arc::new(move |id| {
+            let _ = lock(&at_hook_tx).send(id);
+            let _ = lock(&release_rx).recv();
+        }));
+        let id = jobs.submit("held", SMALL).await.unwrap().id;
+        let held = tokio::task::spawn_blocking(move || at_hook_rx.recv().unwrap())
+            .await
+            .unwrap();
+        assert_eq!(held, id);
+
+        // What a crash right now would leave: the record, committed, and the image.
+        let other = Store::open(dir.path()).await.unwrap();
+        let rec = other.get(id).await.unwrap().unwrap();
+        assert_eq!(rec.state, JobState::Succeeded);
+        assert!(rec.has_frame && rec.stats.is_some() && rec.finished_at.is_some());
+        let png = std::fs::read(other.layer_path(id, "image", false).unwrap()).unwrap();
+        let img = crate::raster::decode_image(&png).unwrap();
+        assert_eq!((img.width(), img.height()), (8, 6));
+        assert!(!other.layer_path(id, "samples", false).unwrap().exists());
+        assert!(!other.layer_path(id, "image", true).unwrap().exists());
+        // A restart over it keeps the job finished (it is not run again).
+        assert!(other.recover().await.unwrap().is_empty());
+        other.close().await;
+
+        // Meanwhile the running server serves every layer complete, from memory.
+        let state = super::super::http::AppState {
+            jobs: jobs.clone(),
+            metrics: Arc::new(Metrics::default()),
+            token: None,
+            stop: tokio_util::sync::CancellationToken::new(),
+            max_body_bytes: 1 << 20,
+            max_watchers: 4,
+        };
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let server =
+            tokio::spawn(
+                async move { axum::serve(listener, super::super::http::router(state)).await },
+            );
+        let c = reqwest::Client::new();
+        for q in [
+            "layer=samples",
+            "layer=distance",
+            "layer=classes",
+            "format=exr",
+        ] {
+            let r = c
+                .get(format!("http://{addr}/v1/jobs/{id}/frame?{q}"))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 200, "{q}");
+            let img = crate::raster::decode_image(&r.bytes().await.unwrap()).unwrap();
+            assert_eq!((img.width(), img.height()), (8, 6), "{q}");
+        }
+
+        // DELETE waits for the late writes instead of racing them.
+        let jobs2 = jobs.clone();
+        let delete = tokio::spawn(async move { jobs2.delete(id).await });
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        assert!(
+            !delete.is_finished(),
+            "DELETE must wait for the late writes"
+        );
+        release_tx.send(()).unwrap();
+        assert!(matches!(
+            delete.await.unwrap().unwrap(),
+            DeleteOutcome::Deleted
+        ));
+        assert!(
+            !jobs.store().job_dir(id).exists(),
+            "nothing written after DELETE"
+        );
+        server.abort();
+        jobs.shutdown().await;
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -16,6 +16,10 @@ pub struct Metrics {
     render_micros: AtomicU64,
     pub ws_watchers: AtomicI64,
     pub http_errors: AtomicU64,
+    /// PNGs of a frame's image encoded for the streams and the final file. A frame is
+    /// encoded only when a watcher (or the final file) takes it, so with nobody watching
+    /// this grows by one per job, not by one per frame.
+    pub frames_encoded: AtomicU64,
 }
 
 impl Metrics {
@@ -53,7 +57,7 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
         let n = counts.iter().find(|(s, _)| *s == st).map_or(0, |(_, n)| *n);
         let _ = writeln!(out, "glimpse_jobs{{state=\"{}\"}} {n}", st.as_str());
     }
-    let lines: [(&str, &str, &str, String); 6] = [
+    let lines: [(&str, &str, &str, String); 7] = [
         (
             "glimpse_queue_depth",
             "gauge",
@@ -92,6 +96,12 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
             "counter",
             "Error responses sent.",
             m.http_errors.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_frames_encoded_total",
+            "counter",
+            "Frame images encoded as PNG (for watchers or the final file).",
+            m.frames_encoded.load(Ordering::Relaxed).to_string(),
         ),
     ];
     for (name, kind, help, value) in lines {
