@@ -13,9 +13,11 @@
 //!
 //! Speed: the per-pixel part runs in kernel.rs, 8 pixels per call in struct-of-arrays form
 //! (vectorised, AVX2 when available), with fast log2/exp2 powers (fastmath.rs) checked
-//! against calib.rs's exact f64 formulas in tests.rs. Decompose (pyramid.rs) runs whole-row
-//! AVX2 loops with the receptor conversion fused in, and recycles the planes of dropped
-//! stacks (so a model keeps about one stack's worth of buffers alive between calls).
+//! against calib.rs's exact f64 formulas in tests.rs. Decompose (pyramid.rs) runs fused
+//! row/column passes per band of rows (AVX-512 or AVX2 kernels, run-time dispatch, all
+//! bitwise identical) with the receptor conversion and the NaN/∞ check fused in, and
+//! recycles the planes of dropped stacks (so a model keeps about one stack's worth of
+//! buffers alive between calls).
 //!
 //! Degenerate sizes: when the image is too small for any band to pass the size rule of
 //! §2.2 (e.g. 1×1, 2×2 at 28 ppd) the model has N = 0 bands and every distance is exactly 0:
@@ -34,6 +36,7 @@ use calib::DOG_PEAK_TIMES_SIGMA;
 use fastmath::pow4;
 use kernel::{ChannelConsts, FastGain, TransducerConsts, LANES};
 use pyramid::{bilinear, build_level, BufferPool, DisplayConv, LevelSpec, Plane, Source, P4};
+pub use pyramid::{Isa, RowPath};
 use rayon::prelude::*;
 use std::sync::Arc;
 
@@ -126,6 +129,29 @@ impl ContrastStack {
     pub fn height(&self) -> u32 {
         self.height
     }
+    /// Whether the two stacks hold bitwise the same levels (the bench checks that every
+    /// pyramid path gives the same stack).
+    #[doc(hidden)]
+    #[must_use]
+    pub fn bitwise_eq(&self, other: &ContrastStack) -> bool {
+        let same = |a: &Plane, b: &Plane| {
+            (a.w, a.h, a.decim) == (b.w, b.h, b.decim)
+                && a.data.len() == b.data.len()
+                && a.data
+                    .as_flattened()
+                    .iter()
+                    .zip(b.data.as_flattened())
+                    .all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        (self.width, self.height) == (other.width, other.height)
+            && self.levels.len() == other.levels.len()
+            && self
+                .levels
+                .iter()
+                .zip(&other.levels)
+                .all(|(a, b)| same(a, b))
+    }
+
     /// Bytes of pixel storage (the memory budget is ≤ 64 B per image pixel).
     #[must_use]
     pub fn bytes(&self) -> usize {
@@ -267,6 +293,18 @@ impl VisionModel {
 
     /// Whole-image part of the model (§2.1–2.2). Refuses NaN/Inf.
     pub fn decompose(&self, img: &LinearImage) -> Result<ContrastStack, VisionError> {
+        self.decompose_with(img, RowPath::best())
+    }
+
+    /// [`Self::decompose`] with an explicit pyramid path (instruction set, fused passes
+    /// or not), clamped to what the CPU runs. Every path gives bitwise the same stack
+    /// (tested); this exists for the bench's before/after and the bit-identity tests.
+    #[doc(hidden)]
+    pub fn decompose_with(
+        &self,
+        img: &LinearImage,
+        path: RowPath,
+    ) -> Result<ContrastStack, VisionError> {
         if img.is_empty() {
             return Err(VisionError::Empty);
         }
@@ -276,16 +314,20 @@ impl VisionModel {
                 b: (img.width(), img.height()),
             });
         }
-        // Sequential on purpose: rayon's `position_first` checks a shared atomic per item
-        // and measured 13× slower than this scan (issue #3).
-        if let Some(i) = img.pixels().iter().position(|p| !p.is_finite()) {
-            let w = img.width() as usize;
-            return Err(VisionError::NonFinite {
-                x: (i % w) as u32,
-                y: (i / w) as u32,
-            });
-        }
+        let non_finite = || {
+            first_non_finite(img.pixels()).map(|i| {
+                let w = img.width() as usize;
+                VisionError::NonFinite {
+                    x: (i % w) as u32,
+                    y: (i / w) as u32,
+                }
+            })
+        };
         if self.levels.is_empty() {
+            // No level reads the image: scan it here.
+            if let Some(e) = non_finite() {
+                return Err(e);
+            }
             return Ok(ContrastStack {
                 width: self.width,
                 height: self.height,
@@ -301,16 +343,31 @@ impl VisionModel {
         };
         // §2.1 (receptor signals) happens inside the first level's horizontal pass.
         let pool = &self.pool;
-        // The horizontal-pass scratch is largest for the first level (at most W·H).
-        let mut tmp = pool.take(img.len());
+        // The two-pass scratch is largest for the first level (at most W·H); the fused
+        // passes need none.
+        let mut tmp = if path.fused {
+            Vec::new()
+        } else {
+            pool.take(img.len())
+        };
+        // The first level flags non-finite input while converting it (pyramid.rs
+        // `Source::Display`); the exact first pixel is then found by a scan.
+        let bad = std::sync::atomic::AtomicBool::new(false);
         let levels = build_levels(
-            Source::Display(img, conv),
+            Source::Display(img, conv, &bad),
             &self.levels,
             &mut tmp,
             |n| pool.take(n),
-            true,
+            path,
         );
         pool.give(tmp);
+        if bad.load(std::sync::atomic::Ordering::Relaxed) {
+            for l in levels {
+                pool.give(l.data);
+            }
+            // The flag was set, so the scan finds the pixel; `Empty` is unreachable.
+            return Err(non_finite().unwrap_or(VisionError::Empty));
+        }
         Ok(ContrastStack {
             width: self.width,
             height: self.height,
@@ -380,26 +437,48 @@ impl VisionModel {
     }
 }
 
-/// The cascade of §2.2 from the input (the receptor image for level 0). `simd` selects the
-/// AVX2 row loops when the CPU has them (bitwise-identical results); `buffer(n)` supplies
-/// each level's storage.
+/// Index of the first pixel with a NaN or infinite channel (only run when the first level
+/// flagged one, or when there is no level). Sequential on purpose:
+/// rayon's `position_first` checks a shared atomic per item and measured 13× slower than a
+/// scan (issue #3). The scan takes the largest exponent field of each block of pixels
+/// (an integer max, which vectorises, unlike a short-circuiting `is_finite` per pixel):
+/// a value is non-finite exactly when its exponent bits are all ones. Only a failing block
+/// is searched pixel by pixel.
+fn first_non_finite(px: &[crate::raster::Rgb]) -> Option<usize> {
+    const EXP: u32 = 0x7f80_0000;
+    const BLOCK: usize = 1024;
+    px.chunks(BLOCK).enumerate().find_map(|(b, c)| {
+        let m = c.iter().fold(0u32, |m, p| {
+            m.max(p.x.to_bits() & EXP)
+                .max(p.y.to_bits() & EXP)
+                .max(p.z.to_bits() & EXP)
+        });
+        if m < EXP {
+            return None;
+        }
+        c.iter().position(|p| !p.is_finite()).map(|i| b * BLOCK + i)
+    })
+}
+
+/// The cascade of §2.2 from the input (the receptor image for level 0). `path` selects the
+/// row loops (all bitwise identical); `buffer(n)` supplies each level's storage.
 fn build_levels(
     input: Source,
     specs: &[LevelSpec],
     tmp: &mut Vec<P4>,
     buffer: impl Fn(usize) -> Vec<P4>,
-    simd: bool,
+    path: RowPath,
 ) -> Vec<Plane> {
     let mut out: Vec<Plane> = Vec::with_capacity(specs.len());
     let (mut w, mut h) = match input {
         Source::Plane(p) => (p.w as usize, p.h as usize),
-        Source::Display(img, _) => (img.width() as usize, img.height() as usize),
+        Source::Display(img, ..) => (img.width() as usize, img.height() as usize),
     };
     for spec in specs {
         let step = spec.step as usize;
         (w, h) = (w.div_ceil(step), h.div_ceil(step));
         let src = out.last().map_or(input, Source::Plane);
-        let next = build_level(&src, spec, tmp, buffer(w * h), simd);
+        let next = build_level(&src, spec, tmp, buffer(w * h), path);
         out.push(next);
     }
     out
@@ -429,7 +508,7 @@ fn measure_peak_gain(levels: &[LevelSpec], n: usize, freq: f64) -> f64 {
         &levels[..(n + 2).min(levels.len())],
         &mut Vec::new(),
         |_| Vec::new(),
-        true,
+        RowPath::best(),
     );
     let (Some(g), Some(lo)) = (planes.get(n), planes.get(n + 1)) else {
         return 0.0;

@@ -288,3 +288,71 @@ fn recycled_level_buffers_give_identical_stacks() {
     assert_eq!(got, want);
     assert_eq!(again.bytes(), bytes);
 }
+
+/// s10: every pyramid path (instruction set × two passes or fused bands) gives bitwise
+/// the two-pass stack, through the whole model (receptor conversion, every level), for odd
+/// sizes and pixel densities that change the kernels.
+#[test]
+fn every_pyramid_path_gives_the_same_stack() {
+    let mut paths = Vec::new();
+    for isa in Isa::available() {
+        for (fused, band_rows) in [(false, 0), (true, 0), (true, 1), (true, 3), (true, 5)] {
+            paths.push(RowPath {
+                isa,
+                fused,
+                band_rows,
+            });
+        }
+    }
+    for (w, h) in [
+        (64, 48),
+        (64, 36),
+        (48, 64),
+        (37, 29),
+        (17, 3),
+        (3, 17),
+        (1, 1),
+        (131, 9),
+    ] {
+        for ppd in [28.0, 14.0, 45.0, 60.0] {
+            let m = VisionModel::new(display(ppd), w, h);
+            let img = random_image(w, h, u64::from(w * 31 + h) + ppd as u64);
+            let want = m.decompose_with(&img, RowPath::two_pass_avx2()).unwrap();
+            for &path in &paths {
+                let got = m.decompose_with(&img, path).unwrap();
+                assert!(got.bitwise_eq(&want), "{w}x{h} ppd {ppd} {path:?}");
+            }
+        }
+    }
+}
+
+/// s10: the finiteness check moved into the first level's conversion. Every path still
+/// refuses NaN and ±∞ with the first offending pixel (row-major), including one in the last
+/// row and the first column, and the model decomposes a finite image normally afterwards
+/// (the discarded levels went back to the pool).
+#[test]
+fn non_finite_input_is_refused_with_its_first_pixel_on_every_path() {
+    let (w, h) = (40, 33);
+    let m = VisionModel::new(display(28.0), w, h);
+    let good = random_image(w, h, 3);
+    let want = m.decompose(&good).unwrap();
+    for path in [RowPath::best(), RowPath::two_pass_avx2()] {
+        for (bad, (x, y)) in [
+            (f32::NAN, (17, 5)),
+            (f32::INFINITY, (0, 32)),
+            (f32::NEG_INFINITY, (39, 0)),
+        ] {
+            let mut img = good.clone();
+            let mut p = *img.get(x, y);
+            p.y = bad;
+            img.set(x, y, p);
+            // A later non-finite pixel must not win over the first.
+            let mut q = *img.get(w - 1, h - 1);
+            q.z = f32::NAN;
+            img.set(w - 1, h - 1, q);
+            let err = m.decompose_with(&img, path).err();
+            assert_eq!(err, Some(VisionError::NonFinite { x, y }), "{path:?}");
+        }
+        assert!(m.decompose_with(&good, path).unwrap().bitwise_eq(&want));
+    }
+}
