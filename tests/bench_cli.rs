@@ -56,9 +56,33 @@ fn bench_writes_report_results_and_plot_for_every_method() {
     assert!(px("guo") <= px("progressive") + 40 * 30);
     assert_eq!(scene["sweep"].as_array().unwrap().len(), 3);
     assert!(!scene["targets"].as_array().unwrap().is_empty());
+    // The time split: the traced pixels alone cost a positive share of the reference, at
+    // most what a pixel fraction times a sane per-pixel cost allows, and the rest is the loop.
+    let split = &scene["time_split"];
+    let alone = split["traced_alone_ratio"].as_f64().unwrap();
+    let cost = split["pixel_cost_ratio"].as_f64().unwrap();
+    let prog = scene["methods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["method"] == "progressive")
+        .unwrap();
+    let frac = prog["pixel_fraction"].as_f64().unwrap();
+    assert!(alone > 0.0 && cost > 0.0, "{split}");
+    assert!(
+        (alone - frac * cost).abs() < 1e-9,
+        "{split}: ratio = fraction × cost"
+    );
+    let total = prog["time_ratio"].as_f64().unwrap();
+    let loop_ratio = split["loop_ratio"].as_f64().unwrap();
+    assert!(
+        (alone + loop_ratio - total).abs() < 1e-9,
+        "{split}: the parts sum to the whole"
+    );
 
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("### tiny") && report.contains("| target | met | measured |"));
+    assert!(report.contains("Time split of the progressive run"));
     let svg = std::fs::read_to_string(out.join("tradeoff.svg")).unwrap();
     assert!(svg.starts_with("<svg") || svg.contains("<svg"));
     for m in ["reference", "progressive", "guo", "uniform"] {

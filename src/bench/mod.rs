@@ -9,7 +9,9 @@
 //!   similar");
 //! * **uniform**: every pixel traced with as many samples as fit in the progressive run's
 //!   wall time (equal time);
-//! * a sweep of `t0` drawing the speed/accuracy curve.
+//! * a sweep of `t0` drawing the speed/accuracy curve;
+//! * the progressive run's time split ([`TimeSplit`]): its traced pixels traced again
+//!   alone, against the reference, and the rest (the loop's own price).
 //!
 //! Each image is judged by LDR-FLIP against an *independent* reference (the same scene
 //! traced with another seed), beside the reference's own noise floor (reference against
@@ -24,7 +26,7 @@ use crate::cancel::CancelToken;
 use crate::metric::{self, MetricParams};
 pub use crate::progressive::display_model;
 use crate::progressive::{self, uniform, RenderOptions};
-use crate::raster::LinearImage;
+use crate::raster::{LinearImage, PixelCoord};
 use crate::scene::{parse_scene, Limits, RenderMode, Scene, SceneOrigin};
 use crate::tracer::{self, PathTracer};
 use crate::vision::VisionModel;
@@ -83,6 +85,21 @@ pub struct TargetCheck {
     pub detail: String,
 }
 
+/// Where the progressive render's time goes, against the reference's time: the pixels it
+/// traced, traced again alone (the same list, no loop), and everything else. The first
+/// part is what its pixel fraction must cost; the second is the loop's own price.
+#[derive(Clone, Debug, Serialize)]
+pub struct TimeSplit {
+    /// Tracing the progressive run's pixels alone ÷ the reference's time.
+    pub traced_alone_ratio: f64,
+    /// Cost of one of those pixels ÷ the reference's mean cost per pixel: above 1 where the
+    /// loop traces where the picture changes (edges, glossy and shadowed parts: longer paths).
+    pub pixel_cost_ratio: f64,
+    /// (progressive time − tracing alone) ÷ the reference's time: analysis (object ids,
+    /// texture albedos), noise twins, vision model, metric, triangulation, shading.
+    pub loop_ratio: f64,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct SceneResult {
     pub scene: String,
@@ -96,6 +113,7 @@ pub struct SceneResult {
     pub sweep: Vec<SweepPoint>,
     /// (normal exposure, exposure × 16) pixel fractions, for dark scenes.
     pub exposure_check: Option<(f64, f64)>,
+    pub time_split: TimeSplit,
     pub targets: Vec<TargetCheck>,
 }
 
@@ -210,6 +228,7 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     }
     let (reference, prog) = timed.context("at least one timing run")?;
     let (reference_ms, prog_ms) = (median(&mut ref_times), median(&mut prog_times));
+    let time_split = time_split(&tracer, &prog, prog_ms, reference_ms, runs, &cancel)?;
     let judge = tracer::render_reference_with(
         &tracer,
         Some((spp, scene.render.seed ^ JUDGE_SEED_OFFSET)),
@@ -369,7 +388,38 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         methods,
         sweep,
         exposure_check,
+        time_split,
         targets,
+    })
+}
+
+/// [`TimeSplit`]: the progressive run's traced pixels traced again, alone (median of
+/// `runs`), against the reference's time.
+fn time_split(
+    tracer: &PathTracer,
+    prog: &progressive::Frame,
+    prog_ms: f64,
+    reference_ms: f64,
+    runs: usize,
+    cancel: &CancelToken,
+) -> anyhow::Result<TimeSplit> {
+    let s = &prog.samples;
+    let traced: Vec<PixelCoord> = (0..s.height())
+        .flat_map(|y| (0..s.width()).map(move |x| PixelCoord::new(x, y)))
+        .filter(|p| *s.get(p.x, p.y) != progressive::SampleCell::Interpolated)
+        .collect();
+    let mut times = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        tracer::trace_pixels(tracer, &traced, cancel)?;
+        times.push(ms(t));
+    }
+    let alone = median(&mut times);
+    let per_ref_pixel = reference_ms / (f64::from(s.width()) * f64::from(s.height())).max(1.0);
+    Ok(TimeSplit {
+        traced_alone_ratio: alone / reference_ms,
+        pixel_cost_ratio: alone / traced.len().max(1) as f64 / per_ref_pixel,
+        loop_ratio: (prog_ms - alone) / reference_ms,
     })
 }
 

@@ -46,6 +46,15 @@ pub fn scene_table(r: &SceneResult) -> String {
             p.flip
         );
     }
+    let ts = &r.time_split;
+    let _ = write!(
+        s,
+        "\n\nTime split of the progressive run: tracing its pixels alone takes {:.2}× the \
+         reference's time (one of them costs {:.2}× an average reference pixel); the loop's own \
+         work (analysis, noise twins, vision model, metric, triangulation, shading) is the \
+         other {:.2}×.",
+        ts.traced_alone_ratio, ts.pixel_cost_ratio, ts.loop_ratio
+    );
     s.push_str("\n\n| target | met | measured |\n|---|---|---|\n");
     for t in &r.targets {
         let _ = writeln!(
