@@ -79,6 +79,12 @@ fn bench_writes_report_results_and_plot_for_every_method() {
         (alone + loop_ratio - total).abs() < 1e-9,
         "{split}: the parts sum to the whole"
     );
+    for part in ["analysis_ms", "metric_ms", "triangulate_ms"] {
+        assert!(
+            split["loop_parts"][part].as_f64().unwrap() >= 0.0,
+            "{split}"
+        );
+    }
 
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("### tiny") && report.contains("| target | met | measured |"));

@@ -98,6 +98,24 @@ pub struct TimeSplit {
     /// (progressive time − tracing alone) ÷ the reference's time: analysis (object ids,
     /// texture albedos), noise twins, vision model, metric, triangulation, shading.
     pub loop_ratio: f64,
+    /// The loop's part, from the run's own statistics, in ms of that run.
+    pub loop_parts: LoopParts,
+}
+
+/// The loop's own work in one progressive run (its [`progressive::RenderStats`]), ms.
+#[derive(Clone, Debug, Serialize)]
+pub struct LoopParts {
+    /// The loop's tracing beyond the same pixels traced alone: the noise twins, the mesh
+    /// built on a thread beside the trace, and each iteration's last batches.
+    pub trace_beyond_alone_ms: f64,
+    /// Object ids, first sample set, texture albedos.
+    pub analysis_ms: f64,
+    /// Vision model and adaptive metric (frames and noise twins).
+    pub metric_ms: f64,
+    /// Triangulation, rasterisation and shading not overlapped by the trace.
+    pub triangulate_ms: f64,
+    /// The rest: classification, work lists, frames.
+    pub other_ms: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -416,10 +434,19 @@ fn time_split(
     }
     let alone = median(&mut times);
     let per_ref_pixel = reference_ms / (f64::from(s.width()) * f64::from(s.height())).max(1.0);
+    let st = &prog.stats;
+    let counted = st.trace_ms + st.analysis_ms + st.metric_ms + st.triangulate_ms;
     Ok(TimeSplit {
         traced_alone_ratio: alone / reference_ms,
         pixel_cost_ratio: alone / traced.len().max(1) as f64 / per_ref_pixel,
         loop_ratio: (prog_ms - alone) / reference_ms,
+        loop_parts: LoopParts {
+            trace_beyond_alone_ms: st.trace_ms - alone,
+            analysis_ms: st.analysis_ms,
+            metric_ms: st.metric_ms,
+            triangulate_ms: st.triangulate_ms,
+            other_ms: st.total_ms - counted,
+        },
     })
 }
 

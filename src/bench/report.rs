@@ -55,6 +55,25 @@ pub fn scene_table(r: &SceneResult) -> String {
          other {:.2}×.",
         ts.traced_alone_ratio, ts.pixel_cost_ratio, ts.loop_ratio
     );
+    let lp = &ts.loop_parts;
+    // The in-loop trace and the alone trace are different runs: a difference below zero is
+    // run-to-run noise, said as such rather than shown as a negative cost.
+    let beyond = if lp.trace_beyond_alone_ms >= 0.0 {
+        format!("{:.0} ms", lp.trace_beyond_alone_ms)
+    } else {
+        format!(
+            "none measurable ({:.0} ms: run-to-run noise)",
+            lp.trace_beyond_alone_ms
+        )
+    };
+    let _ = write!(
+        s,
+        " In that run's statistics, the loop's part is: tracing beyond the pixels alone \
+         {beyond} (noise twins, the mesh built beside the trace, batch tails), analysis {:.0} \
+         ms, vision model and metric {:.0} ms, triangulation and shading {:.0} ms, the rest \
+         {:.0} ms.",
+        lp.analysis_ms, lp.metric_ms, lp.triangulate_ms, lp.other_ms
+    );
     s.push_str("\n\n| target | met | measured |\n|---|---|---|\n");
     for t in &r.targets {
         let _ = writeln!(
