@@ -47,7 +47,7 @@ fn encode_png_flat_rgb8(
 #[must_use]
 pub fn to_display_rgb8(img: &LinearImage, exposure: f32) -> Image<[u8; 3]> {
     let lut = DisplayLut::get();
-    img.map(|p| [p.x, p.y, p.z].map(|v| lut.level(v * exposure)))
+    img.map(|p| lut.pixel(*p, exposure))
 }
 
 /// [`to_display_rgb8`] straight into packed bytes, the layout the PNG encoder takes (one
@@ -56,9 +56,7 @@ fn to_display_flat_rgb8(img: &LinearImage, exposure: f32) -> Vec<u8> {
     let lut = DisplayLut::get();
     let mut flat = vec![0u8; img.pixels().len() * 3];
     for (o, p) in flat.chunks_exact_mut(3).zip(img.pixels()) {
-        o[0] = lut.level(p.x * exposure);
-        o[1] = lut.level(p.y * exposure);
-        o[2] = lut.level(p.z * exposure);
+        o.copy_from_slice(&lut.pixel(*p, exposure));
     }
     flat
 }
@@ -116,6 +114,12 @@ impl DisplayLut {
         })
     }
 
+    /// The displayed levels of one linear pixel.
+    #[inline]
+    fn pixel(&self, p: Rgb, exposure: f32) -> [u8; 3] {
+        [p.x, p.y, p.z].map(|v| self.level(v * exposure))
+    }
+
     #[inline]
     fn level(&self, v: f32) -> u8 {
         // NaN gives 0; `min` below is the clamp of the definition (+∞ included).
@@ -146,8 +150,9 @@ pub fn encode_png_display(img: &LinearImage, exposure: f32) -> Result<Vec<u8>, C
 /// Linear float OpenEXR of the raw radiance (no exposure, no clamp).
 ///
 /// Through the `exr` crate directly (the one behind `image`), uncompressed: `image`'s
-/// encoder compresses, which took 7–9 ms for a 512² image, and every finished job stores
-/// one. 32-bit float R, G, B, scanlines, increasing y.
+/// encoder compresses, 5.2 ms for a 512² image against 3.7 ms this way (medians of 31,
+/// idle machine), and every finished job stores one. 32-bit float R, G, B, scanlines,
+/// increasing y.
 pub fn encode_exr(img: &LinearImage) -> Result<Vec<u8>, CodecError> {
     use exr::prelude::{
         Encoding, Image as ExrImage, Layer, LayerAttributes, SpecificChannels, Vec2, WritableImage,

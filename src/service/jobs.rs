@@ -936,24 +936,23 @@ fn remove_placeholder(dir: &std::path::Path) {
 /// "no samples layer" while its image, state and statistics are intact.
 fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), String> {
     use rayon::prelude::*;
-    let encoded: Vec<(String, Vec<u8>)> = layers::LAYERS
-        .par_iter()
-        .filter(|&&layer| layer != "image")
-        .map(|&layer| Some(layer))
-        .chain(rayon::iter::once(None)) // None: the EXR
-        .map(|layer| -> Result<Option<(String, Vec<u8>)>, String> {
-            let Some(layer) = layer else {
-                let exr = crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string())?;
-                return Ok(Some(("image.exr".to_owned(), exr)));
-            };
-            let png = lf.encode_layer_blocking(layer)?;
-            Ok(png.map(|p| (format!("{layer}.png"), p)))
-        })
-        .collect::<Result<Vec<_>, String>>()?
-        .into_iter()
-        .flatten()
-        .collect();
-    store::write_files_blocking(dir, &encoded).map_err(|e| e.to_string())
+    // The other layers' PNGs and the EXR, encoded in parallel.
+    let (pngs, exr) = rayon::join(
+        || {
+            layers::LAYERS
+                .par_iter()
+                .filter(|&&layer| layer != "image")
+                .map(|&layer| {
+                    let png = lf.encode_layer_blocking(layer)?;
+                    Ok(png.map(|p| (format!("{layer}.png"), p)))
+                })
+                .collect::<Result<Vec<_>, String>>()
+        },
+        || crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string()),
+    );
+    let mut files: Vec<(String, Vec<u8>)> = pngs?.into_iter().flatten().collect();
+    files.push(("image.exr".to_owned(), exr?));
+    store::write_files_blocking(dir, &files).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

@@ -467,6 +467,37 @@ pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io:
 #[cfg(test)]
 mod tests {
     #[test]
+    fn the_final_image_overwrites_its_placeholder_or_is_written_without_one() {
+        let dir = tempfile::tempdir().unwrap();
+        // Prepared: the (empty) placeholder is overwritten; a longer earlier content (a
+        // re-run after a crash) is truncated, not left as a tail.
+        let job = dir.path().join("prepared");
+        super::prepare_job_dir_blocking(&job).unwrap();
+        let file = job.join(super::FINAL_IMAGE_FILE);
+        assert_eq!(std::fs::read(&file).unwrap(), b"");
+        std::fs::write(&file, b"an older and longer image").unwrap();
+        super::write_final_image_blocking(&job, b"png").unwrap();
+        assert_eq!(std::fs::read(&file).unwrap(), b"png");
+        // Not prepared (the preparation failed): the folder is made and the file written
+        // by temp file and rename, with no temp file left behind.
+        let job = dir.path().join("unprepared");
+        super::write_final_image_blocking(&job, b"png2").unwrap();
+        assert_eq!(
+            std::fs::read(job.join(super::FINAL_IMAGE_FILE)).unwrap(),
+            b"png2"
+        );
+        let names: Vec<_> = std::fs::read_dir(&job)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, [super::FINAL_IMAGE_FILE]);
+        // A folder that cannot be made is an error, not a panic.
+        let blocked = dir.path().join("a-file");
+        std::fs::write(&blocked, b"x").unwrap();
+        assert!(super::write_final_image_blocking(&blocked.join("job"), b"png").is_err());
+    }
+
+    #[test]
     fn timestamps_have_fixed_width_so_string_order_is_time_order() {
         let t = time::macros::datetime!(2026-11-25 21:52:06.8 UTC);
         let u = time::macros::datetime!(2026-11-25 21:52:06.82 UTC);
