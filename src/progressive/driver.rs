@@ -679,7 +679,7 @@ pub fn run<O: PixelOracle>(
                 .map(|&i| PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32))
                 .collect();
             let tri_ref = &mut tri;
-            let (traced, mesh) = std::thread::scope(|sc| {
+            let (traced, mesh, t) = std::thread::scope(|sc| {
                 let side = sc.spawn(move || {
                     tri_ref.insert(&coords);
                     let nt = tri_ref.triangles();
@@ -687,12 +687,12 @@ pub fn run<O: PixelOracle>(
                     (nt, nr)
                 });
                 let traced = r.trace(&work, next_iter, cancel);
-                (traced, side.join())
+                // Only the time the loop waits for the mesh after tracing counts as
+                // triangulation (the rest ran beside the trace), and it does count.
+                let t = Instant::now();
+                (traced, side.join(), t)
             });
             traced?;
-            // Only the time the loop waits for the mesh after tracing counts as
-            // triangulation (the rest ran beside the trace).
-            let t = Instant::now();
             // A panic there is the same bug as one inline: hand it on unchanged.
             let (nt, nr) = mesh.unwrap_or_else(|e| std::panic::resume_unwind(e));
             (nt, nr, t)

@@ -185,8 +185,8 @@ fn every_pixel<T: Send>(
     oracle: &impl PixelOracle,
     f: impl Fn(PixelCoord) -> T + Sync + Send,
 ) -> Vec<T> {
-    let w = oracle.size().0 as usize;
-    let n = w * oracle.size().1 as usize;
+    let (w, h) = oracle.size();
+    let (w, n) = (w as usize, w as usize * h as usize);
     (0..n)
         .into_par_iter()
         .map(|i| f(PixelCoord::new((i % w) as u32, (i / w) as u32)))
