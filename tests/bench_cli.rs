@@ -16,7 +16,7 @@ fn bench_writes_report_results_and_plot_for_every_method() {
     std::fs::write(scenes.join("tiny.json"), TINY).unwrap();
     let out = dir.path().join("out");
     let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .args(["bench", "--quick", "--scenes"])
+        .args(["bench", "--quick", "--spp-factor", "2", "--scenes"])
         .arg(&scenes)
         .arg("--out")
         .arg(&out)
@@ -28,6 +28,8 @@ fn bench_writes_report_results_and_plot_for_every_method() {
         serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
     let scene = &results["scenes"][0];
     assert_eq!(scene["scene"], "tiny");
+    // The tiny scene is written at 4 spp; every render of the study used twice that.
+    assert_eq!(scene["spp"], 8, "--spp-factor 2 applied");
     let methods: Vec<&str> = scene["methods"]
         .as_array()
         .unwrap()
@@ -90,6 +92,11 @@ fn bench_writes_report_results_and_plot_for_every_method() {
 
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(report.contains("### tiny") && report.contains("| target | met | measured |"));
+    assert!(report.contains("`glimpse bench --quick --spp-factor 2`"));
+    assert!(
+        report.contains("8 spp"),
+        "the scene header shows the samples used"
+    );
     assert!(report.contains("Time split of the progressive run"));
     let svg = std::fs::read_to_string(out.join("tradeoff.svg")).unwrap();
     assert!(svg.starts_with("<svg") || svg.contains("<svg"));
@@ -108,4 +115,40 @@ fn bench_on_a_missing_folder_is_one_clear_error() {
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("cannot read scene folder"), "{err}");
+}
+
+#[test]
+fn bench_refuses_an_spp_factor_out_of_range_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir(&scenes).unwrap();
+    std::fs::write(scenes.join("tiny.json"), TINY).unwrap();
+    let bench = |factor: &str| {
+        Command::new(env!("CARGO_BIN_EXE_glimpse"))
+            .args(["bench", "--quick", "--spp-factor", factor, "--scenes"])
+            .arg(&scenes)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .output()
+            .unwrap()
+    };
+    // 0 is refused by the command line itself.
+    let o = bench("0");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--spp-factor"), "{err}");
+    // Within the flag's range, but the scaled scene is over the limits: 1000 spp × 4096 =
+    // 4 096 000 samples per pixel, over the command line's 2^20.
+    std::fs::write(
+        scenes.join("tiny.json"),
+        TINY.replace("\"samples_per_pixel\": 4", "\"samples_per_pixel\": 1000"),
+    )
+    .unwrap();
+    let o = bench("4096");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("tiny.json") && err.contains("--spp-factor 4096") && err.contains("1000"),
+        "{err}"
+    );
 }

@@ -43,6 +43,11 @@ pub struct BenchConfig {
     pub out_dir: PathBuf,
     /// Small images and few samples: the whole study in a few minutes (CI).
     pub quick: bool,
+    /// Every scene's samples per pixel multiplied by this (≥ 1; 1 = the scenes as written).
+    /// The loop's own work (analysis, vision model, metric, triangulation) does not grow
+    /// with the samples, the tracing does: this shows how the time ratios move when a pixel
+    /// costs more, as it does in the production scenes F&P04 timed (§5).
+    pub spp_factor: u32,
 }
 
 /// One method's result on one scene.
@@ -154,7 +159,7 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
 
     let mut results = Vec::new();
     for path in &files {
-        let scene = load(path, cfg.quick)?;
+        let scene = load(path, cfg)?;
         eprintln!(
             "bench: {} ({}x{}, {} spp)",
             scene.name, scene.width, scene.height, scene.render.samples_per_pixel
@@ -169,9 +174,10 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
 }
 
 /// Loads a scene; in quick mode shrinks it to at most 128 pixels on its long side. The
-/// samples per pixel stay the scene's: fewer would make the reference itself noisy, and a
-/// noisy reference is a different study (every method is then judged mostly on noise).
-fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
+/// samples per pixel stay the scene's (times [`BenchConfig::spp_factor`]): fewer would make
+/// the reference itself noisy, and a noisy reference is a different study (every method is
+/// then judged mostly on noise).
+fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Scene> {
     let json =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -183,7 +189,31 @@ fn load(path: &Path, quick: bool) -> anyhow::Result<Scene> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
     }
-    if quick {
+    if cfg.spp_factor != 1 {
+        let limits = Limits::command_line();
+        // The scaled scene must pass what the scene's own validation checks (scene-format.md
+        // "Limits"): the samples per pixel and the whole render's sample budget.
+        let spp = scene.render.samples_per_pixel;
+        let pixels = u64::from(scene.width) * u64::from(scene.height);
+        scene.render.samples_per_pixel = spp
+            .checked_mul(cfg.spp_factor)
+            .filter(|&v| {
+                v >= 1
+                    && v <= limits.max_samples_per_pixel
+                    && u128::from(v) * u128::from(pixels) <= u128::from(limits.max_sample_budget)
+            })
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: render.samples_per_pixel {spp} × --spp-factor {} is over the limits \
+                     ({} samples per pixel, {} samples per render)",
+                    path.display(),
+                    cfg.spp_factor,
+                    limits.max_samples_per_pixel,
+                    limits.max_sample_budget
+                )
+            })?;
+    }
+    if cfg.quick {
         let long = scene.width.max(scene.height);
         if long > 128 {
             let s = 128.0 / long as f32;

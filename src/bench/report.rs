@@ -87,6 +87,18 @@ pub fn scene_table(r: &SceneResult) -> String {
     s
 }
 
+/// The command line's flags that shaped this run, as typed.
+fn flags(cfg: &BenchConfig) -> String {
+    let mut f = String::new();
+    if cfg.quick {
+        f.push_str(" --quick");
+    }
+    if cfg.spp_factor != 1 {
+        let _ = write!(f, " --spp-factor {}", cfg.spp_factor);
+    }
+    f
+}
+
 /// Writes report.md, results.json and tradeoff.svg into the output folder.
 pub fn write(
     cfg: &BenchConfig,
@@ -106,8 +118,16 @@ pub fn write(
          alternating runs (one run in `--quick`); every other cell is one render. All in one \
          run on this machine: the ratios measured side by side are the result, not the \
          absolute times.\n",
-        if cfg.quick { " --quick" } else { "" }
+        flags(cfg)
     );
+    if cfg.spp_factor != 1 {
+        let _ = writeln!(
+            md,
+            "Run with `--spp-factor {}`: every scene's samples per pixel are {}× those written \
+             in its file (the spp column shows the samples used).\n",
+            cfg.spp_factor, cfg.spp_factor
+        );
+    }
     for r in results {
         md.push_str(&scene_table(r));
         md.push('\n');

@@ -84,6 +84,10 @@ pub struct BenchArgs {
     /// Small sizes that fit in CI.
     #[arg(long)]
     pub quick: bool,
+    /// Multiply every scene's samples per pixel by this: the loop's own cost stays, the
+    /// tracing grows, and the report shows how the time ratios move with a pixel's cost.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub spp_factor: u32,
 }
 
 /// Runs the parsed command line.
@@ -149,6 +153,7 @@ fn bench(a: &BenchArgs) -> anyhow::Result<()> {
         scenes_dir: a.scenes.clone(),
         out_dir: a.out.clone(),
         quick: a.quick,
+        spp_factor: a.spp_factor,
     };
     let results = crate::bench::run(&cfg)?;
     eprintln!(
