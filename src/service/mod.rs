@@ -77,7 +77,7 @@ pub fn server_limits() -> Limits {
         max_width: 4096,
         max_height: 4096,
         // One frame with its layers stays under ~400 MB; a progressive render of this size
-        // peaks at ~4.3 GB resident (README "When the progressive loop does not pay").
+        // peaks at ~4.1 GB resident (README "When the progressive loop does not pay").
         max_pixels: 4096 * 4096,
         max_sample_budget: 1 << 32,
         max_objects: 10_000,
