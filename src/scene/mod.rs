@@ -9,7 +9,9 @@ pub mod obj;
 pub mod transform;
 pub mod validate;
 
-pub use validate::{parse_scene, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin};
+pub use validate::{
+    parse_scene, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin, MAX_COORDINATE,
+};
 
 use glam::Vec3;
 

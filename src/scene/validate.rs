@@ -107,6 +107,15 @@ pub const DEGENERATE_REL: f32 = 1e-6;
 /// (≈ 0.006°): the camera basis built from them would be numerical noise.
 const PARALLEL_SIN: f32 = 1e-4;
 
+/// Largest magnitude of a world-space coordinate (camera, point lights, every object after
+/// its transform). scene-format.md forbids NaN and infinities but sets no range; a finite
+/// f32 as large as 1e30 still overflows where the tracer squares a distance (a sphere's
+/// `|o − c|² − r²`) or the BVH builder multiplies two box extents (surface areas), and
+/// `obvhs` then panicked on the NaN costs (found by fuzzing mutated scenes). At 1e9 squares
+/// (1e18) and even fourth powers (1e36) stay finite in f32; no real scene needs more (a
+/// planet in metres is 6.4e6).
+pub const MAX_COORDINATE: f32 = 1e9;
+
 /// Parses and validates a scene document.
 ///
 /// Two steps: the text is parsed to a `serde_json::Value` first, so every syntax problem
@@ -327,6 +336,9 @@ struct Ctx {
     warnings: Vec<Problem>,
     unlisted_errors: usize,
     unlisted_warnings: usize,
+    /// The farthest world-space coordinate beyond ±[`MAX_COORDINATE`] of the object being
+    /// checked (value, axis), if any: reported once per object by [`build`].
+    far: Option<(f32, usize)>,
 }
 
 fn push_capped(list: &mut Vec<Problem>, unlisted: &mut usize, path: &str, message: String) {
@@ -534,9 +546,23 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
     // limits is that no work is spent on it.
     if cx.too_large.is_empty() {
         for (k, o) in doc.objects.iter().enumerate() {
-            if let Some(s) = check_object(&mut cx, k, o, &material_names, origin) {
-                shapes.push(s);
+            let shape = check_object(&mut cx, k, o, &material_names, origin);
+            if let Some(Shape::Sphere { center, radius, .. }) = &shape {
+                for v in [*center - *radius, *center + *radius] {
+                    note_far(&mut cx, v);
+                }
             }
+            if let Some((v, a)) = cx.far.take() {
+                cx.err(
+                    &format!("objects[{k}]"),
+                    format!(
+                        "reaches {v:e} on the {} axis after its transform; world coordinates \
+                         must be within ±{MAX_COORDINATE:e}",
+                        ["x", "y", "z"][a]
+                    ),
+                );
+            }
+            shapes.extend(shape);
         }
     }
     let triangles: usize = shapes
@@ -611,9 +637,39 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
     })
 }
 
+/// Within ±[`MAX_COORDINATE`]; false for NaN (every comparison with NaN is false).
+fn in_range(v: f32) -> bool {
+    v.abs() <= MAX_COORDINATE
+}
+
+/// Records in `cx.far` a world-space point's coordinate beyond ±[`MAX_COORDINATE`] (or not
+/// a number: an overflowed transform), keeping the largest seen for the current object.
+fn note_far(cx: &mut Ctx, p: Vec3) {
+    for a in 0..3 {
+        let v = p[a];
+        if !in_range(v) && !cx.far.is_some_and(|(f, _)| f.abs() >= v.abs()) {
+            cx.far = Some((v, a));
+        }
+    }
+}
+
+/// [`Ctx::vec3`] for a world-space position: finite and within ±[`MAX_COORDINATE`].
+fn world_position(cx: &mut Ctx, path: &str, v: V3) -> Vec3 {
+    let p = cx.vec3(path, v);
+    for (i, c) in v.iter().enumerate() {
+        if c.is_finite() && c.abs() > MAX_COORDINATE {
+            cx.err(
+                &format!("{path}[{i}]"),
+                format!("must be within ±{MAX_COORDINATE:e}, got {c:e}"),
+            );
+        }
+    }
+    p
+}
+
 fn check_camera(cx: &mut Ctx, c: &CameraDoc) -> Camera {
-    let position = cx.vec3("camera.position", c.position);
-    let look_at = cx.vec3("camera.look_at", c.look_at);
+    let position = world_position(cx, "camera.position", c.position);
+    let look_at = world_position(cx, "camera.look_at", c.look_at);
     let up = cx.vec3("camera.up", c.up);
     if cx.finite("camera.fov_y", c.fov_y) && !(c.fov_y > 0.0 && c.fov_y < 180.0) {
         cx.err(
@@ -808,14 +864,22 @@ fn push_triangle(
             n.swap(1, 2);
         }
     }
+    // A vertex out of range refuses the whole object (reported once by `build`), before the
+    // degenerate test: a far-out corner can swallow its edges in f32 and look degenerate.
+    for v in p {
+        note_far(cx, v);
+    }
+    if p.iter().flat_map(Vec3::to_array).any(|c| !in_range(c)) {
+        return;
+    }
     let (e1, e2, e3) = (p[1] - p[0], p[2] - p[0], p[2] - p[1]);
     let lmax2 = e1
         .length_squared()
         .max(e2.length_squared())
         .max(e3.length_squared());
     let area2 = e1.cross(e2).length();
-    // Written so that NaN (an overflowed transform) also counts as degenerate: every
-    // comparison with NaN is false.
+    // Written so that NaN also counts as degenerate (every comparison with NaN is false);
+    // vertices are finite and in range here, so this is only a guard.
     let sound = area2 > DEGENERATE_REL * lmax2 && lmax2.is_finite();
     if !sound {
         cx.warn(
@@ -1078,7 +1142,7 @@ fn check_object(
 fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
     match l {
         LightDoc::Point(pl) => Light::Point {
-            position: cx.vec3(&format!("{p}.position"), pl.position),
+            position: world_position(cx, &format!("{p}.position"), pl.position),
             intensity: cx.nonneg3(&format!("{p}.intensity"), pl.intensity),
         },
         LightDoc::Directional(d) => {
@@ -1201,6 +1265,75 @@ mod tests {
     }
 
     const SCENE: SceneErrorKind = SceneErrorKind::InvalidScene;
+
+    #[test]
+    fn world_coordinates_beyond_the_range_are_refused_where_they_come_from() {
+        let cases: Vec<(Value, &str, &str)> = vec![
+            // A finite f32 whose square overflows: the sphere itself.
+            (
+                with(|v| v["objects"][0]["radius"] = json!(1e30)),
+                "objects[0]",
+                "x axis",
+            ),
+            // A huge translate on a box: caught after the transform, on the axis it moves.
+            (
+                with(|v| {
+                    v["objects"][0] = json!({"type":"box","min":[-1,-1,-1],"max":[1,1,1],
+                        "material":"m","transform":{"translate":[0, 3.4e38, 0]}});
+                }),
+                "objects[0]",
+                "y axis",
+            ),
+            // A scale that blows a small mesh up past the range.
+            (
+                with(|v| {
+                    v["objects"][0] = json!({"type":"mesh","positions":[[0,0,0],[1,0,0],[0,0,1]],
+                        "indices":[[0,1,2]],"material":"m","transform":{"scale":1e10}});
+                }),
+                "objects[0]",
+                "x axis",
+            ),
+            (
+                with(|v| v["camera"]["position"] = json!([0, 1, 2e9])),
+                "camera.position[2]",
+                "±1e9",
+            ),
+            (
+                with(|v| {
+                    v["lights"] =
+                        json!([{"type":"point","position":[-5e12,0,0],"intensity":[1,1,1]}]);
+                }),
+                "lights[0].position[0]",
+                "-5e12",
+            ),
+        ];
+        for (doc, path, says) in cases {
+            let (kind, p, msg) = refused(&doc.to_string());
+            assert_eq!((kind, p.as_str()), (SCENE, path), "{msg}");
+            assert!(msg.contains(says) && msg.contains("1e9"), "{path}: {msg}");
+        }
+        // A far-out corner swallows a quad's edges in f32 (its triangles would look
+        // degenerate): still refused as out of range, once, not warned about per triangle.
+        let quad = with(|v| {
+            v["objects"][0] = json!({"type":"quad","corner":[1e30,0,0],"edge_u":[1,0,0],
+                "edge_v":[0,0,1],"material":"m"});
+        });
+        match parse(&quad) {
+            Err(e) => {
+                assert_eq!(e.problems.len(), 1, "{e}");
+                assert_eq!(e.problems[0].path, "objects[0]");
+                assert!(e.problems[0].message.contains("1e30"), "{e}");
+            }
+            Ok(s) => panic!("accepted, warnings {:?}", s.warnings),
+        }
+        // At the edge of the range: accepted.
+        let edge = with(|v| {
+            v["objects"][0]["center"] = json!([0, 0, -5e8]);
+            v["objects"][0]["radius"] = json!(5e8);
+            v["camera"]["position"] = json!([0, 1, 1e9]);
+        });
+        parse(&edge).unwrap();
+    }
 
     #[test]
     fn minimal_document_parses_with_defaults() {
