@@ -11,9 +11,13 @@ pub fn eval(tex: &Texture, p: Vec3) -> Vec3 {
     match *tex {
         Texture::Constant(c) => c,
         Texture::Checker { scale, a, b } => {
-            // 3-D checker of period `scale`: parity of Σ floor(p / scale).
+            // 3-D checker of period `scale`: parity of Σ floor(p / scale). A tiny scale can
+            // put p / scale beyond i64 (or at ∞): the casts saturate and the sum wraps, so
+            // the parity is still defined (features far below a pixel: any parity will do).
             let q = (p / scale).floor();
-            let s = q.x as i64 + q.y as i64 + q.z as i64;
+            let s = (q.x as i64)
+                .wrapping_add(q.y as i64)
+                .wrapping_add(q.z as i64);
             if s.rem_euclid(2) == 0 {
                 a
             } else {
@@ -21,8 +25,10 @@ pub fn eval(tex: &Texture, p: Vec3) -> Vec3 {
             }
         }
         Texture::Noise { scale, a, b } => {
-            // Perlin noise is in about [-1, 1]; map to a blend weight in [0, 1].
-            let n = perlin(p / scale);
+            // Perlin noise is in about [-1, 1]; map to a blend weight in [0, 1]. Where
+            // p / scale overflows to ∞ the features are infinitely fine: their mean, 0.
+            let q = p / scale;
+            let n = if q.is_finite() { perlin(q) } else { 0.0 };
             let t = (0.5 + 0.5 * n).clamp(0.0, 1.0);
             a + (b - a) * t
         }
@@ -74,7 +80,12 @@ pub fn perlin(p: Vec3) -> f32 {
     let mut acc = [0.0f32; 8];
     for (k, a) in acc.iter_mut().enumerate() {
         let (dx, dy, dz) = ((k & 1) as i64, ((k >> 1) & 1) as i64, ((k >> 2) & 1) as i64);
-        let h = lattice_hash(ix + dx, iy + dy, iz + dz);
+        // Wrapping: far out (|p| ≥ 2^63, saturated casts) the lattice wraps like the hash.
+        let h = lattice_hash(
+            ix.wrapping_add(dx),
+            iy.wrapping_add(dy),
+            iz.wrapping_add(dz),
+        );
         *a = grad(h, f - Vec3::new(dx as f32, dy as f32, dz as f32));
     }
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
@@ -88,6 +99,36 @@ pub fn perlin(p: Vec3) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A texture scale far below the coordinates' precision (validation accepts any
+    /// positive scale) puts p / scale beyond i64 or at ∞: still a blend of `a` and `b`,
+    /// never a panic (integer overflow) or NaN. Found by `tests/scene_fuzz.rs`.
+    #[test]
+    fn extreme_texture_coordinates_give_a_blend_of_the_two_colours() {
+        let (a, b) = (Vec3::new(0.1, 0.2, 0.3), Vec3::new(0.9, 0.8, 0.7));
+        for scale in [1e-30f32, 1e-45, 1e-9] {
+            for p in [
+                Vec3::new(1e9, -1e9, 3.0),
+                Vec3::new(9.5, 0.25, -7.0),
+                Vec3::splat(-1e9),
+                Vec3::ZERO,
+            ] {
+                for t in [
+                    Texture::Checker { scale, a, b },
+                    Texture::Noise { scale, a, b },
+                ] {
+                    let c = eval(&t, p);
+                    assert!(
+                        c.is_finite() && c.cmpge(a.min(b)).all() && c.cmple(a.max(b)).all(),
+                        "{t:?} at {p}: {c}"
+                    );
+                }
+            }
+        }
+        // Beyond i64 the noise is 0 (every lattice gradient sees a zero offset): mid-blend.
+        let mid = eval(&Texture::Noise { scale: 1e-30, a, b }, Vec3::splat(1e9));
+        assert!((mid - (a + b) * 0.5).abs().max_element() < 1e-6, "{mid}");
+    }
 
     #[test]
     fn checker_parity_and_period() {
