@@ -925,6 +925,43 @@ async fn many_watchers_share_one_job() {
     // A client that connects and says nothing does not hold the server: close it.
     let mut ws = ws_connect(&s, &id, None).await;
     ws.send(Message::Close(None)).await.unwrap();
+    // What a client sends is read and dropped; a message over the limit ends its stream
+    // (the server must not buffer it), while one under it changes nothing. The job is long
+    // (cancelled at the end), so the oversized stream cannot have ended by running out.
+    let long = s.submit(&long_scene()).await;
+    s.wait_state(&long, &["running"], Duration::from_secs(10))
+        .await;
+    let mut small = ws_connect(&s, &long, None).await;
+    let mut big = ws_connect(&s, &long, None).await;
+    small
+        .send(Message::Binary(vec![7u8; 1000].into()))
+        .await
+        .unwrap();
+    let _ = big
+        .send(Message::Binary(
+            vec![7u8; glimpse::service::ws::MAX_CLIENT_MESSAGE + 1].into(),
+        ))
+        .await;
+    let ended = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            match big.next().await {
+                Some(Ok(Message::Close(_)) | Err(_)) | None => break,
+                Some(Ok(_)) => {}
+            }
+        }
+    })
+    .await;
+    assert!(ended.is_ok(), "the oversized stream was not ended");
+    assert_eq!(s.job(&long).await["state"], "running");
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202);
+    let (texts, _) = read_stream(&mut small, Duration::from_secs(30)).await;
+    assert_eq!(texts.last().unwrap()["type"], "done", "{texts:?}");
     s.stop().await.unwrap();
 }
 

@@ -30,6 +30,12 @@ use uuid::Uuid;
 /// hold a connection and a frame alive forever).
 const SEND_TIMEOUT: Duration = Duration::from_secs(30);
 
+/// Largest message (and frame) a client may send on a stream. Clients only need control
+/// frames (ping, close: ≤ 125 bytes) and whatever they send is read and dropped, but axum's
+/// default would buffer up to 64 MiB per message: 256 watchers could make the server hold
+/// 16 GiB. A larger message ends that stream.
+pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+
 pub async fn stream(
     State(st): State<AppState>,
     JobId(id): JobId,
@@ -56,6 +62,9 @@ pub async fn stream(
         e.retry_after_s = Some(5);
         return Err(e);
     }
+    let ws = ws
+        .max_message_size(MAX_CLIENT_MESSAGE)
+        .max_frame_size(MAX_CLIENT_MESSAGE);
     Ok(ws.on_upgrade(move |socket| async move {
         let _guard = WatcherGuard::new(&st.metrics);
         let (mut tx, mut rx) = socket.split();
