@@ -1039,3 +1039,72 @@ async fn every_layer_asked_right_after_done_is_complete_and_delete_at_once_is_cl
     error_of(r, 404, "not_found").await;
     s.stop().await.unwrap();
 }
+
+/// Slow clients cannot hold connections for good ("slowloris"): half a header is dropped
+/// after the header timeout, a trickled body gets `408 request_timeout` at the request
+/// deadline, while a stream (whose request ends with the upgrade) outlives both and other
+/// clients are served throughout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_headers_and_bodies_are_cut_but_streams_are_not() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = Server::start(|c| {
+        c.header_timeout = Duration::from_millis(300);
+        c.request_deadline = Duration::from_millis(600);
+    })
+    .await;
+    let long = s.submit(&long_scene()).await;
+    let mut ws = ws_connect(&s, &long, None).await;
+
+    // Half a header: closed without an answer.
+    let mut half = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    half.write_all(b"GET /healthz HTTP/1.1\r\nHo")
+        .await
+        .unwrap();
+    let t = Instant::now();
+    let mut buf = Vec::new();
+    let n = tokio::time::timeout(Duration::from_secs(5), half.read_to_end(&mut buf))
+        .await
+        .expect("half a header held the connection");
+    assert!(
+        n.is_err() || buf.is_empty(),
+        "{:?}",
+        String::from_utf8_lossy(&buf)
+    );
+    assert!(
+        t.elapsed() >= Duration::from_millis(250),
+        "{:?}",
+        t.elapsed()
+    );
+
+    // A body promised but not sent: 408 in our JSON error shape, then the server closes.
+    let mut slow = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    slow.write_all(
+        b"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+          Content-Length: 1000\r\n\r\n{\"ver",
+    )
+    .await
+    .unwrap();
+    let mut buf = Vec::new();
+    tokio::time::timeout(Duration::from_secs(5), slow.read_to_end(&mut buf))
+        .await
+        .expect("a trickled body held the connection")
+        .unwrap();
+    let text = String::from_utf8_lossy(&buf);
+    assert!(text.starts_with("HTTP/1.1 408"), "{text}");
+    assert!(text.contains("\"code\":\"request_timeout\""), "{text}");
+
+    // Others are served meanwhile, and the stream opened before is still open, past both
+    // timeouts: it gets the cancelled job's `done`.
+    assert_eq!(s.job(&long).await["state"], "running");
+    let r = s
+        .client
+        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 202);
+    let (texts, _) = read_stream(&mut ws, Duration::from_secs(30)).await;
+    assert_eq!(texts.first().unwrap()["type"], "state");
+    assert_eq!(texts.last().unwrap()["type"], "done", "{texts:?}");
+    s.stop().await.unwrap();
+}

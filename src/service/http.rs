@@ -38,6 +38,8 @@ pub struct AppState {
     /// Fires on shutdown: open streams close.
     pub stop: CancellationToken,
     pub max_body_bytes: usize,
+    /// [`REQUEST_DEADLINE`] unless a test shortens it.
+    pub request_deadline: std::time::Duration,
     pub max_watchers: usize,
 }
 
@@ -58,6 +60,9 @@ pub enum ErrorCode {
     QueueFull,
     Unauthorized,
     Unavailable,
+    /// The request (headers aside) was not received and answered within
+    /// [`REQUEST_DEADLINE`]: a client trickling its body.
+    RequestTimeout,
     Internal,
 }
 
@@ -74,6 +79,7 @@ impl ErrorCode {
             ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
             ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
             ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::RequestTimeout => StatusCode::REQUEST_TIMEOUT,
             ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
         }
     }
@@ -354,11 +360,47 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             refuse_oversized,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            request_deadline,
+        ))
         .layer(axum::middleware::map_response_with_state(
             state.clone(),
             json_errors,
         ))
         .with_state(state)
+}
+
+/// The whole of a request, body included, must arrive and be answered within this time
+/// (the header has its own timeout, `service::HEADER_TIMEOUT`). Without it a client
+/// sending one byte a minute holds a connection and a task for good, and enough of them
+/// exhaust the server's file descriptors. 60 s carries the 8 MiB body limit at ~1 Mbit/s.
+/// A stream's handler ends when it answers the upgrade, so streams are not cut.
+pub const REQUEST_DEADLINE: std::time::Duration = std::time::Duration::from_secs(60);
+
+/// Answers `408 request_timeout` (and closes the connection: its body is unread) when the
+/// request is not done within `AppState::request_deadline`.
+async fn request_deadline(
+    State(st): State<AppState>,
+    req: Request,
+    next: axum::middleware::Next,
+) -> Response {
+    match tokio::time::timeout(st.request_deadline, next.run(req)).await {
+        Ok(res) => res,
+        Err(_) => {
+            let mut res = ApiError::new(
+                ErrorCode::RequestTimeout,
+                format!(
+                    "the request was not complete within {} s",
+                    st.request_deadline.as_secs_f64()
+                ),
+            )
+            .into_response();
+            res.headers_mut()
+                .insert(header::CONNECTION, HeaderValue::from_static("close"));
+            res
+        }
+    }
 }
 
 /// How much of a declared-oversized body is read and discarded before answering 413.

@@ -1167,6 +1167,7 @@ mod tests {
             token: None,
             stop: tokio_util::sync::CancellationToken::new(),
             max_body_bytes: 1 << 20,
+            request_deadline: super::super::http::REQUEST_DEADLINE,
             max_watchers: 4,
         };
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();

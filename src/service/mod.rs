@@ -23,6 +23,7 @@ pub mod ws;
 use crate::scene::Limits;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Duration;
 
 /// Everything the service needs, parsed once in `main`.
 #[derive(Clone, Debug)]
@@ -43,6 +44,10 @@ pub struct Config {
     /// Open job streams, all jobs together; beyond it `503 unavailable` (each stream holds
     /// a connection, a task and possibly an encoded frame).
     pub max_watchers: usize,
+    /// A request's header must arrive within this ([`HEADER_TIMEOUT`]), the rest of it
+    /// within `request_deadline` ([`http::REQUEST_DEADLINE`]); tests shorten them.
+    pub header_timeout: Duration,
+    pub request_deadline: Duration,
 }
 
 impl Config {
@@ -57,6 +62,8 @@ impl Config {
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
             limits: server_limits(),
             max_watchers: DEFAULT_MAX_WATCHERS,
+            header_timeout: HEADER_TIMEOUT,
+            request_deadline: http::REQUEST_DEADLINE,
         }
     }
 }
@@ -67,6 +74,13 @@ pub const DEFAULT_QUEUE_CAPACITY: usize = 64;
 pub const DEFAULT_MAX_WATCHERS: usize = 256;
 /// 8 MiB: room for a mesh of ~100k triangles in JSON, small enough to buffer per request.
 pub const DEFAULT_MAX_BODY_BYTES: usize = 8 << 20;
+/// A request header (a few hundred bytes) that has not arrived in 10 s never will: the
+/// connection is closed. `axum::serve` sets no such timeout, so a client sending half a
+/// header held its connection for good (measured: still open after 45 s), and enough of
+/// them exhaust the file descriptors ("slowloris").
+pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long shutdown waits for requests in flight before closing their connections.
+const DRAIN_ON_SHUTDOWN: Duration = Duration::from_secs(10);
 
 /// What one request may ask of the server: up to a 4096² image and 2^32 paths (a 4096²
 /// image at 256 spp; a 512² image at 16k spp), i.e. minutes to an hour of CPU, not days.
@@ -121,6 +135,7 @@ pub async fn run(
         token: config.token.filter(|t| !t.is_empty()).map(Arc::from),
         stop: stop.clone(),
         max_body_bytes: config.max_body_bytes,
+        request_deadline: config.request_deadline,
         max_watchers: config.max_watchers,
     };
     let app = http::router(state);
@@ -129,11 +144,67 @@ pub async fn run(
         shutdown.await;
         stop2.cancel();
     });
-    let served = axum::serve(listener, app)
-        .with_graceful_shutdown(stop.clone().cancelled_owned())
-        .await;
-    // Also reached if serving failed: never leave workers rendering behind us.
+    serve(listener, app, &stop, config.header_timeout).await;
+    // Never leave workers rendering behind us.
     stop.cancel();
     jobs.shutdown().await;
-    served.map_err(|e| anyhow::anyhow!("server error: {e}"))
+    Ok(())
+}
+
+/// `axum::serve` with a header timeout, which it does not offer: hyper's HTTP/1 and HTTP/2
+/// connections (with upgrades, for the streams) on `listener` until `stop` fires; then
+/// requests in flight get [`DRAIN_ON_SHUTDOWN`] to finish (streams end by themselves on
+/// `stop`, see `ws`).
+async fn serve(
+    listener: tokio::net::TcpListener,
+    app: axum::Router,
+    stop: &tokio_util::sync::CancellationToken,
+    header_timeout: Duration,
+) {
+    use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    loop {
+        let stream = tokio::select! {
+            r = listener.accept() => match r {
+                Ok((stream, _)) => stream,
+                Err(e) => {
+                    // As axum::serve: a connection that died in the backlog is nothing;
+                    // anything else (out of file descriptors) is worth a pause.
+                    if !matches!(
+                        e.kind(),
+                        std::io::ErrorKind::ConnectionAborted
+                            | std::io::ErrorKind::ConnectionRefused
+                            | std::io::ErrorKind::ConnectionReset
+                    ) {
+                        tracing::error!("accept error: {e}");
+                        tokio::time::sleep(Duration::from_secs(1)).await;
+                    }
+                    continue;
+                }
+            },
+            () = stop.cancelled() => break,
+        };
+        let _ = stream.set_nodelay(true);
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        let watcher = graceful.watcher();
+        tokio::spawn(async move {
+            let mut builder = hyper_util::server::conn::auto::Builder::new(TokioExecutor::new());
+            builder
+                .http1()
+                .timer(TokioTimer::new())
+                .header_read_timeout(header_timeout);
+            builder.http2().enable_connect_protocol();
+            let conn = builder.serve_connection_with_upgrades(TokioIo::new(stream), service);
+            if let Err(e) = watcher.watch(conn).await {
+                tracing::debug!("connection ended: {e}");
+            }
+        });
+    }
+    drop(listener);
+    if tokio::time::timeout(DRAIN_ON_SHUTDOWN, graceful.shutdown())
+        .await
+        .is_err()
+    {
+        tracing::warn!("requests still in flight after {DRAIN_ON_SHUTDOWN:?}: closed");
+    }
 }
