@@ -151,18 +151,25 @@ pub async fn run(
     Ok(())
 }
 
-/// `axum::serve` with a header timeout, which it does not offer: hyper's HTTP/1 and HTTP/2
-/// connections (with upgrades, for the streams) on `listener` until `stop` fires; then
-/// requests in flight get [`DRAIN_ON_SHUTDOWN`] to finish (streams end by themselves on
-/// `stop`, see `ws`).
+/// `axum::serve` with timeouts, which it does not offer: hyper HTTP/1 connections (with
+/// upgrades, for the streams) on `listener` until `stop` fires; then requests in flight get
+/// [`DRAIN_ON_SHUTDOWN`] to finish (streams end by themselves on `stop`, see `ws`).
+///
+/// HTTP/1 only: axum's auto-detection of HTTP/2 waits for a connection's first bytes with
+/// no timeout (measured: a silent connection, or an h2c one after its preface, was still
+/// open after 25 s), and no client of this service needs HTTP/2 over plain TCP. hyper's
+/// header timeout also runs while the connection is silent or idle between requests.
 async fn serve(
     listener: tokio::net::TcpListener,
     app: axum::Router,
     stop: &tokio_util::sync::CancellationToken,
     header_timeout: Duration,
 ) {
-    use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
-    let graceful = hyper_util::server::graceful::GracefulShutdown::new();
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(TokioTimer::new())
+        .header_read_timeout(header_timeout);
+    let connections = tokio_util::task::TaskTracker::new();
     loop {
         let stream = tokio::select! {
             r = listener.accept() => match r {
@@ -186,22 +193,28 @@ async fn serve(
         };
         let _ = stream.set_nodelay(true);
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
-        let watcher = graceful.watcher();
-        tokio::spawn(async move {
-            let mut builder = hyper_util::server::conn::auto::Builder::new(TokioExecutor::new());
-            builder
-                .http1()
-                .timer(TokioTimer::new())
-                .header_read_timeout(header_timeout);
-            builder.http2().enable_connect_protocol();
-            let conn = builder.serve_connection_with_upgrades(TokioIo::new(stream), service);
-            if let Err(e) = watcher.watch(conn).await {
+        let conn = http
+            .serve_connection(TokioIo::new(stream), service)
+            .with_upgrades();
+        let stop = stop.clone();
+        connections.spawn(async move {
+            let mut conn = std::pin::pin!(conn);
+            let ended = tokio::select! {
+                r = conn.as_mut() => r,
+                () = stop.cancelled() => {
+                    // Finish the request in flight, then close (idle ones close at once).
+                    conn.as_mut().graceful_shutdown();
+                    conn.await
+                }
+            };
+            if let Err(e) = ended {
                 tracing::debug!("connection ended: {e}");
             }
         });
     }
     drop(listener);
-    if tokio::time::timeout(DRAIN_ON_SHUTDOWN, graceful.shutdown())
+    connections.close();
+    if tokio::time::timeout(DRAIN_ON_SHUTDOWN, connections.wait())
         .await
         .is_err()
     {
