@@ -89,6 +89,15 @@ impl Server {
         id
     }
 
+    /// `POST /v1/jobs/{id}/cancel`.
+    async fn cancel(&self, id: &str) -> reqwest::Response {
+        self.client
+            .post(self.url(&format!("/v1/jobs/{id}/cancel")))
+            .send()
+            .await
+            .unwrap()
+    }
+
     async fn job(&self, id: &str) -> Value {
         let r = self
             .client
@@ -218,12 +227,7 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert_eq!(first["type"], "state");
     assert_eq!(first["job"]["id"], id.as_str());
     assert_eq!(first["job"]["state"], "queued");
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{blocker}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&blocker).await;
     assert_eq!(r.status(), 202);
 
     let (texts, pngs) = read_stream(&mut ws, Duration::from_secs(60)).await;
@@ -437,12 +441,7 @@ async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
 
     let small = s.submit(&scene(16, 16, "reference", 1)).await;
     let t0 = Instant::now();
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&long).await;
     assert_eq!(r.status(), 202);
     let j = s
         .wait_state(&long, &["cancelled"], Duration::from_secs(5))
@@ -457,19 +456,9 @@ async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
         t0.elapsed()
     );
 
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&long).await;
     error_of(r, 409, "conflict").await;
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{small}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&small).await;
     error_of(r, 409, "conflict").await;
     // A stream of a cancelled job ends with done and the cancelled state.
     let mut ws = ws_connect(&s, &long, None).await;
@@ -501,21 +490,11 @@ async fn a_full_queue_is_429_with_retry_after_and_queued_jobs_cancel_at_once() {
     assert!(retry.is_some_and(|s| (1..=60).contains(&s)), "{retry:?}");
     error_of(r, 429, "queue_full").await;
     // Cancelling the queued job is immediate and frees its slot.
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{b}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&b).await;
     assert_eq!(r.status(), 202);
     assert_eq!(r.json::<Value>().await.unwrap()["state"], "cancelled");
     let c = s.submit(&scene(8, 8, "reference", 1)).await;
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{a}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&a).await;
     assert_eq!(r.status(), 202);
     s.wait_state(&c, &["succeeded"], Duration::from_secs(10))
         .await;
@@ -873,12 +852,7 @@ async fn shutdown_requeues_running_jobs_and_a_restart_finishes_them() {
     let j = s.job(&long).await;
     assert!(j["state"] == "queued" || j["state"] == "running", "{j}");
     assert!(j["finished_at"].is_null(), "{j}");
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&long).await;
     assert_eq!(r.status(), 202);
     s.wait_state(&small, &["succeeded"], Duration::from_secs(10))
         .await;
@@ -953,12 +927,7 @@ async fn many_watchers_share_one_job() {
     .await;
     assert!(ended.is_ok(), "the oversized stream was not ended");
     assert_eq!(s.job(&long).await["state"], "running");
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&long).await;
     assert_eq!(r.status(), 202);
     let (texts, _) = read_stream(&mut small, Duration::from_secs(30)).await;
     assert_eq!(texts.last().unwrap()["type"], "done", "{texts:?}");
@@ -1109,12 +1078,7 @@ async fn slow_headers_and_bodies_are_cut_but_streams_are_not() {
     // Others are served meanwhile, and the stream opened before is still open, past both
     // timeouts: it gets the cancelled job's `done`.
     assert_eq!(s.job(&long).await["state"], "running");
-    let r = s
-        .client
-        .post(s.url(&format!("/v1/jobs/{long}/cancel")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.cancel(&long).await;
     assert_eq!(r.status(), 202);
     let (texts, _) = read_stream(&mut ws, Duration::from_secs(30)).await;
     assert_eq!(texts.first().unwrap()["type"], "state");
