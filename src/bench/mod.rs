@@ -46,7 +46,7 @@ pub struct BenchConfig {
     /// Every scene's samples per pixel multiplied by this (≥ 1; 1 = the scenes as written).
     /// The loop's own work (analysis, vision model, metric, triangulation) does not grow
     /// with the samples, the tracing does: this shows how the time ratios move when a pixel
-    /// costs more, as it does in the production scenes F&P04 timed (§5).
+    /// costs more, as it does in the scenes F&P04 timed (§5: references of 4 to 50 minutes).
     pub spp_factor: u32,
 }
 
@@ -191,8 +191,8 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Scene> {
     }
     if cfg.spp_factor != 1 {
         let limits = Limits::command_line();
-        // The scaled scene must pass what the scene's own validation checks (scene-format.md
-        // "Limits"): the samples per pixel and the whole render's sample budget.
+        // The scaled scene must pass what validation checks for the command line
+        // (`Limits::command_line`): the samples per pixel and the render's sample budget.
         let spp = scene.render.samples_per_pixel;
         let pixels = u64::from(scene.width) * u64::from(scene.height);
         scene.render.samples_per_pixel = spp

@@ -111,7 +111,8 @@ const PARALLEL_SIN: f32 = 1e-4;
 /// its transform). scene-format.md forbids NaN and infinities but sets no range; a finite
 /// f32 as large as 1e30 still overflows where the tracer squares a distance (a sphere's
 /// `|o − c|² − r²`) or the BVH builder multiplies two box extents (surface areas), and
-/// `obvhs` then panicked on the NaN costs (found by fuzzing mutated scenes). At 1e9 squares
+/// `obvhs` then panicked building the BVH (an index out of bounds while ordering a node's
+/// children; found by fuzzing mutated scenes, `tests/scene_fuzz.rs`). At 1e9 squares
 /// (1e18) and even fourth powers (1e36) stay finite in f32; no real scene needs more (a
 /// planet in metres is 6.4e6).
 pub const MAX_COORDINATE: f32 = 1e9;
