@@ -92,92 +92,69 @@ fn every_type() -> Value {
     })
 }
 
-/// Every path to a leaf (numbers, strings, booleans, null) or container of `v`.
-fn paths(v: &Value, at: &mut Vec<Value>, out: &mut Vec<Vec<Value>>) {
+/// The JSON pointer (RFC 6901) of every node of `v` but the root.
+fn pointers(v: &Value, at: &str, out: &mut Vec<String>) {
+    let mut visit = |key: &str, child: &Value| {
+        let p = format!("{at}/{}", key.replace('~', "~0").replace('/', "~1"));
+        out.push(p.clone());
+        pointers(child, &p, out);
+    };
     match v {
-        Value::Object(m) => {
-            for (k, c) in m {
-                at.push(json!(k));
-                out.push(at.clone());
-                paths(c, at, out);
-                at.pop();
-            }
-        }
-        Value::Array(a) => {
-            for (i, c) in a.iter().enumerate() {
-                at.push(json!(i));
-                out.push(at.clone());
-                paths(c, at, out);
-                at.pop();
-            }
-        }
+        Value::Object(m) => m.iter().for_each(|(k, c)| visit(k, c)),
+        Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .for_each(|(i, c)| visit(&i.to_string(), c)),
         _ => {}
     }
-}
-
-fn get_mut<'a>(v: &'a mut Value, path: &[Value]) -> Option<&'a mut Value> {
-    path.iter().try_fold(v, |cur, k| match k {
-        Value::String(s) => cur.get_mut(s.as_str()),
-        Value::Number(n) => cur.get_mut(n.as_u64()? as usize),
-        _ => None,
-    })
 }
 
 /// Applies one random mutation; returns what it did (for the failure message).
 fn mutate(doc: &mut Value, rng: &mut Pcg64Mcg) -> String {
     let mut all = Vec::new();
-    paths(doc, &mut Vec::new(), &mut all);
+    pointers(doc, "", &mut all);
     // Three mutations in four change a number: a structural change is mostly refused at
     // once, and what gets past validation is what this test is for.
-    let numbers: Vec<&Vec<Value>> = all
+    let numbers: Vec<&String> = all
         .iter()
-        .filter(|p| get_mut(&mut doc.clone(), p).is_some_and(|v| v.is_number()))
+        .filter(|p| doc.pointer(p).is_some_and(Value::is_number))
         .collect();
     let path = if !numbers.is_empty() && rng.random_bool(0.75) {
         numbers[rng.random_range(0..numbers.len())].clone()
     } else {
         all[rng.random_range(0..all.len())].clone()
     };
-    let Some(target) = get_mut(doc, &path) else {
+    let Some(target) = doc.pointer_mut(&path) else {
         return String::new();
     };
-    let shown = format!("{path:?}");
     if target.is_number() {
         let v = EXTREMES[rng.random_range(0..EXTREMES.len())];
         *target = json!(v);
-        return format!("{shown} = {v:e}");
+        return format!("{path} = {v:e}");
     }
-    match rng.random_range(0..4) {
+    let (replacement, shown) = match rng.random_range(0..4) {
         0 => {
             // Delete the key or array element.
-            let (last, parent) = path.split_last().expect("non-empty path");
-            match (get_mut(doc, parent), last) {
-                (Some(Value::Object(m)), Value::String(k)) => {
-                    m.remove(k);
+            let (parent, last) = path.rsplit_once('/').expect("not the root");
+            match doc.pointer_mut(parent) {
+                Some(Value::Object(m)) => {
+                    m.remove(&last.replace("~1", "/").replace("~0", "~"));
                 }
-                (Some(Value::Array(a)), Value::Number(i)) => {
-                    let i = i.as_u64().unwrap_or(0) as usize;
-                    if i < a.len() {
+                Some(Value::Array(a)) => {
+                    if let Some(i) = last.parse::<usize>().ok().filter(|&i| i < a.len()) {
                         a.remove(i);
                     }
                 }
                 _ => {}
             }
-            format!("{shown} deleted")
+            return format!("{path} deleted");
         }
-        1 => {
-            *target = json!(null);
-            format!("{shown} = null")
-        }
-        2 => {
-            *target = json!([]);
-            format!("{shown} = []")
-        }
-        _ => {
-            *target = json!("x");
-            format!("{shown} = \"x\"")
-        }
-    }
+        1 => (json!(null), "null"),
+        2 => (json!([]), "[]"),
+        _ => (json!("x"), "\"x\""),
+    };
+    *target = replacement;
+    format!("{path} = {shown}")
 }
 
 #[test]
