@@ -1,6 +1,6 @@
 //! Mutation fuzzing of scene documents, end to end: the bundled scenes with 1–4 of their
 //! numbers replaced by extreme values (0, ±1, ±1e30, 3.4e38, 1e-45, 1e9...), keys deleted
-//! or values of the wrong type. Each document must either be refused with a located error,
+//! or values of the wrong type. Each document must either be refused with an explained error,
 //! or be accepted and then render (BVH build, tracer, the progressive loop, Guo) without a
 //! panic and without NaN in the picture. This is how the ±1e9 coordinate range
 //! (`scene::MAX_COORDINATE`) was found: a sphere of radius 1e30 passed validation and
@@ -158,7 +158,7 @@ fn mutate(doc: &mut Value, rng: &mut Pcg64Mcg) -> String {
 }
 
 #[test]
-fn mutated_scenes_are_refused_with_a_location_or_render_without_panic_or_nan() {
+fn mutated_scenes_are_refused_with_an_explanation_or_render_without_panic_or_nan() {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
     let mut bases: Vec<(String, Value)> = std::fs::read_dir(&dir)
         .unwrap()
