@@ -89,6 +89,16 @@ impl Server {
         id
     }
 
+    /// `GET` of a path on this server.
+    async fn get(&self, path: &str) -> reqwest::Response {
+        self.client.get(self.url(path)).send().await.unwrap()
+    }
+
+    /// `DELETE` of a path on this server.
+    async fn delete(&self, path: &str) -> reqwest::Response {
+        self.client.delete(self.url(path)).send().await.unwrap()
+    }
+
     /// `POST /v1/jobs/{id}/cancel`.
     async fn cancel(&self, id: &str) -> reqwest::Response {
         self.client
@@ -99,12 +109,7 @@ impl Server {
     }
 
     async fn job(&self, id: &str) -> Value {
-        let r = self
-            .client
-            .get(self.url(&format!("/v1/jobs/{id}")))
-            .send()
-            .await
-            .unwrap();
+        let r = self.get(&format!("/v1/jobs/{id}")).await;
         assert_eq!(r.status(), 200);
         r.json().await.unwrap()
     }
@@ -285,55 +290,30 @@ async fn submit_stream_frames_layers_exr_list_delete() {
 
     // Every layer, as PNG of the image size; the EXR; bad parameters.
     for layer in ["image", "samples", "distance", "classes"] {
-        let r = s
-            .client
-            .get(s.url(&format!("/v1/jobs/{id}/frame?layer={layer}")))
-            .send()
-            .await
-            .unwrap();
+        let r = s.get(&format!("/v1/jobs/{id}/frame?layer={layer}")).await;
         assert_eq!(r.status(), 200, "layer {layer}");
         assert_eq!(r.headers()["content-type"], "image/png");
         let b = r.bytes().await.unwrap();
         assert_eq!(png_size(&b), (48, 48), "layer {layer}");
     }
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame")).await;
     assert_eq!(
         r.bytes().await.unwrap().to_vec(),
         *pngs.last().unwrap(),
         "default layer = last streamed image"
     );
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame?format=exr")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame?format=exr")).await;
     assert_eq!(r.status(), 200);
     let exr = glimpse::raster::decode_image(&r.bytes().await.unwrap()).unwrap();
     assert_eq!((exr.width(), exr.height()), (48, 48));
     assert!(!exr.has_non_finite());
     assert!(exr.mean()[0] > 0.0, "a lit sphere is not black");
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame?layer=depth")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame?layer=depth")).await;
     assert_eq!(
         error_of(r, 400, "invalid_parameter").await["error"]["path"],
         "layer"
     );
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame?format=gif")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame?format=gif")).await;
     error_of(r, 400, "invalid_parameter").await;
 
     // A late joiner on a finished job: state, the stored final frame, done.
@@ -358,26 +338,13 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     let l: Value = common::get_json(&s.client, &s.url("/v1/jobs?limit=1")).await;
     assert_eq!(l["jobs"].as_array().unwrap().len(), 1);
     for bad in ["state=done", "limit=0", "limit=501", "limit=ten"] {
-        let r = s
-            .client
-            .get(s.url(&format!("/v1/jobs?{bad}")))
-            .send()
-            .await
-            .unwrap();
+        let r = s.get(&format!("/v1/jobs?{bad}")).await;
         let b = error_of(r, 400, "invalid_parameter").await;
         assert_eq!(b["error"]["path"], bad.split('=').next().unwrap());
     }
 
     // Metrics count what happened.
-    let m = s
-        .client
-        .get(s.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = s.get("/metrics").await.text().await.unwrap();
     assert!(m.contains("glimpse_jobs{state=\"succeeded\"} 1"), "{m}");
     assert!(m.contains("glimpse_jobs{state=\"cancelled\"} 1"), "{m}");
     assert!(m.contains("glimpse_queue_depth 0"), "{m}");
@@ -386,33 +353,13 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert!(!m.contains("glimpse_render_seconds_total 0.000000"), "{m}");
 
     // Delete: 204, then gone (404 everywhere), a second delete 404.
-    let r = s
-        .client
-        .delete(s.url(&format!("/v1/jobs/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.delete(&format!("/v1/jobs/{id}")).await;
     assert_eq!(r.status(), 204);
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}")).await;
     error_of(r, 404, "not_found").await;
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame")).await;
     error_of(r, 404, "not_found").await;
-    let r = s
-        .client
-        .delete(s.url(&format!("/v1/jobs/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.delete(&format!("/v1/jobs/{id}")).await;
     error_of(r, 404, "not_found").await;
     s.stop().await.unwrap();
 }
@@ -424,19 +371,9 @@ async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
     s.wait_state(&long, &["running"], Duration::from_secs(10))
         .await;
     // Still running: no delete, and no frame yet (a reference render has one at the end).
-    let r = s
-        .client
-        .delete(s.url(&format!("/v1/jobs/{long}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.delete(&format!("/v1/jobs/{long}")).await;
     error_of(r, 409, "conflict").await;
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{long}/frame")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{long}/frame")).await;
     error_of(r, 404, "not_found").await;
 
     let small = s.submit(&scene(16, 16, "reference", 1)).await;
@@ -465,12 +402,7 @@ async fn cancel_frees_the_worker_at_once_and_conflicts_are_409() {
     let (texts, _) = read_stream(&mut ws, Duration::from_secs(5)).await;
     assert_eq!(texts.last().unwrap()["type"], "done");
     assert_eq!(texts.last().unwrap()["job"]["state"], "cancelled");
-    let r = s
-        .client
-        .delete(s.url(&format!("/v1/jobs/{long}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.delete(&format!("/v1/jobs/{long}")).await;
     assert_eq!(r.status(), 204);
     s.stop().await.unwrap();
 }
@@ -663,15 +595,7 @@ async fn bad_scenes_get_their_code_and_path() {
         }
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
-    assert_eq!(
-        s.client
-            .get(s.url("/healthz"))
-            .send()
-            .await
-            .unwrap()
-            .status(),
-        200
-    );
+    assert_eq!(s.get("/healthz").await.status(), 200);
     let l: Value = common::get_json(&s.client, &s.url("/v1/jobs")).await;
     assert_eq!(
         l["jobs"].as_array().unwrap().len(),
@@ -878,15 +802,7 @@ async fn many_watchers_share_one_job() {
     drop(socks);
     let deadline = Instant::now() + Duration::from_secs(5);
     loop {
-        let m = s
-            .client
-            .get(s.url("/metrics"))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let m = s.get("/metrics").await.text().await.unwrap();
         if m.contains("glimpse_websocket_watchers 0") {
             break;
         }
@@ -992,19 +908,9 @@ async fn every_layer_asked_right_after_done_is_complete_and_delete_at_once_is_cl
             );
         }
     }
-    let r = s
-        .client
-        .delete(s.url(&format!("/v1/jobs/{id}")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.delete(&format!("/v1/jobs/{id}")).await;
     assert_eq!(r.status(), 204);
-    let r = s
-        .client
-        .get(s.url(&format!("/v1/jobs/{id}/frame?layer=samples")))
-        .send()
-        .await
-        .unwrap();
+    let r = s.get(&format!("/v1/jobs/{id}/frame?layer=samples")).await;
     error_of(r, 404, "not_found").await;
     s.stop().await.unwrap();
 }

@@ -577,3 +577,51 @@ fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--spp-factor` scales the samples and refuses a product over either command-line
+    /// limit (samples per pixel, samples per render), naming the file and the factor.
+    #[test]
+    fn spp_factor_scales_and_is_held_to_both_limits() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.json");
+        // 8192² is the command line's largest image (64 Mi pixels) and costs nothing to
+        // parse: the budget 2^40 then allows exactly 16384 samples per pixel.
+        std::fs::write(
+            &path,
+            r#"{"version": 1, "image": {"width": 8192, "height": 8192},
+                "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "fov_y": 40},
+                "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+                "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1,
+                             "material": "w"}],
+                "render": {"samples_per_pixel": 2}}"#,
+        )
+        .unwrap();
+        let cfg = |spp_factor| BenchConfig {
+            scenes_dir: dir.path().to_path_buf(),
+            out_dir: dir.path().to_path_buf(),
+            quick: false,
+            spp_factor,
+        };
+        assert_eq!(load(&path, &cfg(1)).unwrap().render.samples_per_pixel, 2);
+        assert_eq!(
+            load(&path, &cfg(8192)).unwrap().render.samples_per_pixel,
+            16384,
+            "exactly at the budget"
+        );
+        // Within 2^20 samples per pixel, over the 2^40 budget.
+        let e = load(&path, &cfg(8193)).unwrap_err().to_string();
+        assert!(
+            e.contains("big.json") && e.contains("--spp-factor 8193"),
+            "{e}"
+        );
+        // Over 2^20 samples per pixel; and a product that overflows u32.
+        for f in [1 << 20, u32::MAX] {
+            let e = load(&path, &cfg(f)).unwrap_err().to_string();
+            assert!(e.contains(&format!("--spp-factor {f}")), "{e}");
+        }
+    }
+}

@@ -645,20 +645,27 @@ fn in_range(v: f32) -> bool {
 
 /// Records in `cx.far` a world-space point's coordinate beyond ±[`MAX_COORDINATE`] (or not
 /// a number: an overflowed transform), keeping the largest seen for the current object.
-fn note_far(cx: &mut Ctx, p: Vec3) {
+/// Returns whether the point is out of range.
+fn note_far(cx: &mut Ctx, p: Vec3) -> bool {
+    let mut far = false;
     for a in 0..3 {
         let v = p[a];
-        if !in_range(v) && !cx.far.is_some_and(|(f, _)| f.abs() >= v.abs()) {
-            cx.far = Some((v, a));
+        if !in_range(v) {
+            far = true;
+            if !cx.far.is_some_and(|(f, _)| f.abs() >= v.abs()) {
+                cx.far = Some((v, a));
+            }
         }
     }
+    far
 }
 
 /// [`Ctx::vec3`] for a world-space position: finite and within ±[`MAX_COORDINATE`].
 fn world_position(cx: &mut Ctx, path: &str, v: V3) -> Vec3 {
     let p = cx.vec3(path, v);
     for (i, c) in v.iter().enumerate() {
-        if c.is_finite() && c.abs() > MAX_COORDINATE {
+        // Non-finite values were refused by `vec3` already.
+        if c.is_finite() && !in_range(*c) {
             cx.err(
                 &format!("{path}[{i}]"),
                 format!("must be within ±{MAX_COORDINATE:e}, got {c:e}"),
@@ -867,10 +874,8 @@ fn push_triangle(
     }
     // A vertex out of range refuses the whole object (reported once by `build`), before the
     // degenerate test: a far-out corner can swallow its edges in f32 and look degenerate.
-    for v in p {
-        note_far(cx, v);
-    }
-    if p.iter().flat_map(Vec3::to_array).any(|c| !in_range(c)) {
+    let far = p.iter().fold(false, |far, &v| note_far(cx, v) | far);
+    if far {
         return;
     }
     let (e1, e2, e3) = (p[1] - p[0], p[2] - p[0], p[2] - p[1]);

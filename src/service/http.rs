@@ -374,7 +374,8 @@ pub fn router(state: AppState) -> Router {
 /// The whole of a request, body included, must arrive and be answered within this time
 /// (the header has its own timeout, `service::HEADER_TIMEOUT`). Without it a client
 /// sending one byte a minute holds a connection and a task for good, and enough of them
-/// exhaust the server's file descriptors. 60 s carries the 8 MiB body limit at ~1 Mbit/s.
+/// exhaust the server's file descriptors. 60 s carries the 8 MiB body limit (67 Mbit) at
+/// 1.1 Mbit/s.
 /// A stream's handler ends when it answers the upgrade, so streams are not cut.
 pub const REQUEST_DEADLINE: std::time::Duration = std::time::Duration::from_secs(60);
 

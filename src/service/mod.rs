@@ -218,6 +218,7 @@ async fn serve(
         .await
         .is_err()
     {
-        tracing::warn!("requests still in flight after {DRAIN_ON_SHUTDOWN:?}: closed");
+        // They end with the runtime; the workers are stopped next either way.
+        tracing::warn!("requests still in flight after {DRAIN_ON_SHUTDOWN:?}: not waited for");
     }
 }

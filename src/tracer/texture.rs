@@ -25,10 +25,8 @@ pub fn eval(tex: &Texture, p: Vec3) -> Vec3 {
             }
         }
         Texture::Noise { scale, a, b } => {
-            // Perlin noise is in about [-1, 1]; map to a blend weight in [0, 1]. Where
-            // p / scale overflows to ∞ the features are infinitely fine: their mean, 0.
-            let q = p / scale;
-            let n = if q.is_finite() { perlin(q) } else { 0.0 };
+            // Perlin noise is in about [-1, 1]; map to a blend weight in [0, 1].
+            let n = perlin(p / scale);
             let t = (0.5 + 0.5 * n).clamp(0.0, 1.0);
             a + (b - a) * t
         }
@@ -70,9 +68,14 @@ fn fade(t: f32) -> f32 {
 }
 
 /// Single-octave gradient noise with unit feature size: band-limited around frequency 1,
-/// zero at every lattice point, continuous with continuous derivatives.
+/// zero at every lattice point, continuous with continuous derivatives. Total: at a
+/// non-finite point (a tiny texture scale makes p / scale overflow to ∞) the features are
+/// infinitely fine and the noise is their mean, 0, instead of NaN.
 #[must_use]
 pub fn perlin(p: Vec3) -> f32 {
+    if !p.is_finite() {
+        return 0.0;
+    }
     let fl = p.floor();
     let (ix, iy, iz) = (fl.x as i64, fl.y as i64, fl.z as i64);
     let f = p - fl;
