@@ -629,7 +629,7 @@ async fn every_documented_operation_answers_and_matches_its_schema() {
         j["id"].as_str().expect("id").to_string()
     };
     wait_finished(&c, &srv, &id2).await;
-    for layer in ["image", "samples", "distance", "classes"] {
+    for layer in ["image", "samples", "distance", "classes", "objects"] {
         let r = c
             .get(srv.url(&format!("/v1/jobs/{id2}/frame?layer={layer}")))
             .send()

@@ -271,8 +271,24 @@ fn guo_stops_at_the_pixel_budget() {
     assert!(last.stats.pixels_traced > 300);
     assert_eq!(last.stats.stop_reason.as_deref(), Some("max_pixels"));
     assert_eq!(last.stats.mode, "guo");
-    assert_eq!(last.stats.triangles_final, 0, "Guo has no final class");
     frames.iter().for_each(assert_no_nan);
+}
+
+#[test]
+fn guo_stops_by_itself_on_a_smooth_image() {
+    let (w, h) = (64, 48);
+    let s = scene(w, h, RenderMode::Guo);
+    let smooth = oracle(w, h, |x: u32, y: u32| {
+        Rgb::new(0.3 + x as f32 * 0.002, 0.3 + y as f32 * 0.002, 0.3)
+    });
+    let (last, _) = run(&s, &smooth, &RenderOptions::default());
+    assert_eq!(last.stats.stop_reason.as_deref(), Some("all_final"));
+    assert!(last.stats.triangles_final > 0);
+    assert!(
+        last.stats.pixel_fraction < 0.5,
+        "{}",
+        last.stats.pixel_fraction
+    );
 }
 
 #[test]

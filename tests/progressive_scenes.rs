@@ -104,7 +104,7 @@ fn checker_floor(w: u32, h: u32) -> glimpse::scene::Scene {
 /// pixels (what the loop did before texture modulation) blurs it several times more.
 #[test]
 fn textures_come_from_the_albedo_map_not_from_tracing() {
-    use glimpse::progressive::mesh::{gouraud, rasterise, Triangulator};
+    use glimpse::progressive::mesh::{gouraud, rasterise, ShadeInput, Triangulator};
     use glimpse::progressive::SampleCell;
     use glimpse::raster::{Image, PixelCoord};
 
@@ -139,10 +139,14 @@ fn textures_come_from_the_albedo_map_not_from_tracing() {
     gouraud(
         &tris,
         &raster,
-        reference.pixels(),
-        &traced,
         &tri,
-        None,
+        &ShadeInput {
+            radiance: reference.pixels(),
+            vertex: None,
+            traced: &traced,
+            albedo: None,
+            ids: None,
+        },
         plain.pixels_mut(),
     );
     let plain_err = mean_abs(&plain, &reference, 1.0);

@@ -289,7 +289,7 @@ async fn submit_stream_frames_layers_exr_list_delete() {
     assert!(c.ends_with('Z') && c <= st && st <= fi, "{j}");
 
     // Every layer, as PNG of the image size; the EXR; bad parameters.
-    for layer in ["image", "samples", "distance", "classes"] {
+    for layer in ["image", "samples", "distance", "classes", "objects"] {
         let r = s.get(&format!("/v1/jobs/{id}/frame?layer={layer}")).await;
         assert_eq!(r.status(), 200, "layer {layer}");
         assert_eq!(r.headers()["content-type"], "image/png");

@@ -22,7 +22,7 @@ pub struct RenderArgs {
     /// Also write the linear HDR image as OpenEXR.
     #[arg(long)]
     pub exr: Option<PathBuf>,
-    /// Write the samples, distance and classes layers of the last frame into this folder.
+    /// Write the samples, distance, classes and objects layers of the last frame into this folder.
     #[arg(long)]
     pub layers: Option<PathBuf>,
     /// Override `render.samples_per_pixel`.

@@ -8,11 +8,14 @@
 use super::classify::{classify, guarded_t1, triangle_distances};
 use super::complex::{contour, rupture_direction, Boundary, ContourPixel, Stamp, FULL_TRACE_BELOW};
 use super::guo;
-use super::mesh::{gouraud, rasterise, untextured, Raster, Tri, Triangulator, MIN_ALBEDO};
+use super::mesh::{
+    gouraud, orphan_of, rasterise, untextured, Raster, ShadeInput, Tri, Triangulator, MIN_ALBEDO,
+};
 use super::noise::{
     signal_distance, spans_contour, triangle_noise, visible_discontinuity, NoiseLevel, Twin,
     NOISE_SCALE, TWIN_SEED,
 };
+use super::reconstruct::vertex_values;
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -23,6 +26,7 @@ use crate::tracer::{self, PixelOracle};
 use crate::vision::{ContrastStack, VisionModel};
 use rayon::prelude::*;
 use std::borrow::Cow;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Pixels per `trace_pixels` call; time and pixel budgets are checked between calls.
@@ -54,6 +58,9 @@ pub struct Settings {
     pub samples_per_pixel: u32,
     /// Noise-aware classification ([`super::noise`]); perceptual mode only.
     pub noise_compensation: bool,
+    /// The declared viewing condition: how much averaging the reconstruction needs
+    /// ([`super::reconstruct`]).
+    pub pixels_per_degree: f32,
 }
 
 /// The distance between two successive frames (the perceptual oracle). Implemented over
@@ -180,6 +187,10 @@ struct Run<'a, O: PixelOracle> {
     h: u32,
     n: usize,
     rad: Vec<Rgb>,
+    /// Variance of each traced estimate ([`tracer::Estimate`]).
+    variance: Vec<Rgb>,
+    /// What each vertex contributes to the shading ([`super::reconstruct`]).
+    vertex: Vec<Rgb>,
     /// Texture albedo per pixel (textured scenes only): the [`tracer::ALBEDO_TAPS`] mean
     /// where untraced, the traced estimate's own albedo where traced (mesh.rs `gouraud`).
     albedo: Option<Vec<Option<Rgb>>>,
@@ -238,18 +249,14 @@ impl<O: PixelOracle> Run<'_, O> {
                 .iter()
                 .map(|&i| PixelCoord::new((i % w) as u32, (i / w) as u32))
                 .collect();
-            let vals = match &mut self.albedo {
-                None => tracer::trace_pixels(self.oracle, &coords, cancel)?,
-                Some(albedo) => {
-                    let va = tracer::trace_pixels_albedo(self.oracle, &coords, cancel)?;
-                    for (&i, &(_, a)) in chunk.iter().zip(&va) {
-                        albedo[i] = a;
-                    }
-                    va.into_iter().map(|(v, _)| v).collect()
+            let estimates = tracer::trace_estimates(self.oracle, &coords, cancel)?;
+            for (&i, e) in chunk.iter().zip(estimates) {
+                self.rad[i] = finite(e.radiance);
+                self.vertex[i] = self.rad[i];
+                self.variance[i] = e.variance;
+                if let Some(albedo) = &mut self.albedo {
+                    albedo[i] = e.albedo;
                 }
-            };
-            for (&i, v) in chunk.iter().zip(vals) {
-                self.rad[i] = finite(v);
                 self.traced[i] = true;
                 self.when[i] = iter;
             }
@@ -300,6 +307,40 @@ impl<O: PixelOracle> Run<'_, O> {
             self.queued[i] = true;
             work.push(i);
         }
+    }
+
+    /// The frame: Gouraud shading of the vertices' reconstructed values
+    /// ([`super::reconstruct`]), each pixel from the vertices on its own object. Once every
+    /// pixel is traced the frame is the traced estimates themselves: the reference.
+    fn shade(
+        &mut self,
+        tris: &[Tri],
+        raster: &Raster,
+        tri: &Triangulator,
+        ids: &[ObjectId],
+        out: &mut [Rgb],
+    ) {
+        let all = self.traced_count as usize == self.n;
+        if !all {
+            vertex_values(
+                tris,
+                self.w as usize,
+                &self.rad,
+                &self.variance,
+                ids,
+                self.albedo.as_deref(),
+                self.s.pixels_per_degree,
+                &mut self.vertex,
+            );
+        }
+        let input = ShadeInput {
+            radiance: &self.rad,
+            vertex: (!all).then_some(&self.vertex[..]),
+            traced: &self.traced,
+            albedo: self.albedo.as_deref(),
+            ids: Some(ids),
+        };
+        gouraud(tris, raster, tri, &input, out);
     }
 
     fn push(&mut self, i: usize, work: &mut Vec<usize>) -> bool {
@@ -361,6 +402,8 @@ pub fn run<O: PixelOracle>(
         h,
         n,
         rad: vec![Rgb::ZERO; n],
+        variance: vec![Rgb::ZERO; n],
+        vertex: vec![Rgb::ZERO; n],
         albedo: None,
         traced: vec![false; n],
         when: vec![u32::MAX; n],
@@ -382,7 +425,7 @@ pub fn run<O: PixelOracle>(
 
     // §4.1: object ids (one primary ray per pixel), contour map, first sample set.
     let t = Instant::now();
-    let ids: Image<ObjectId> = tracer::object_id_map(oracle);
+    let ids: Arc<Image<ObjectId>> = Arc::new(tracer::object_id_map(oracle));
     let seeds = initial_samples(&ids, s.initial_rate, s.seed);
     r.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
 
@@ -392,7 +435,7 @@ pub fn run<O: PixelOracle>(
         let all: Vec<usize> = (0..n).collect();
         r.trace(&all, 0, cancel)?;
         let image = Image::from_fn(w, h, |x, y| r.rad[y as usize * w as usize + x as usize]);
-        return emit_only(&mut r, image, Some("no_triangles"), on_frame);
+        return emit_only(&mut r, image, ids, Some("no_triangles"), on_frame);
     }
     // Textured scenes only: the texture's detail comes from this map (mesh.rs `gouraud`);
     // part of the analysis, like the object ids.
@@ -411,15 +454,7 @@ pub fn run<O: PixelOracle>(
     let mut tris = tri.triangles();
     let mut raster = rasterise(&tris, w, h);
     let mut cur = Image::filled(w, h, Rgb::ZERO);
-    gouraud(
-        &tris,
-        &raster,
-        &r.rad,
-        &r.traced,
-        &tri,
-        r.albedo.as_deref(),
-        cur.pixels_mut(),
-    );
+    r.shade(&tris, &raster, &tri, ids.pixels(), cur.pixels_mut());
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
 
     // Noise twin of the first sample set (super::noise): perceptual mode only, and only
@@ -432,6 +467,7 @@ pub fn run<O: PixelOracle>(
                 &tris,
                 &raster,
                 &tri,
+                ids.pixels(),
                 &cur,
                 judge,
                 cancel,
@@ -543,12 +579,23 @@ pub fn run<O: PixelOracle>(
                         .iter()
                         .map(|tr| {
                             contour(tr, w, &mut stamp, &mut cbuf);
-                            let samples = cbuf.iter().filter_map(|c| {
-                                let i = c.p.y as usize * w as usize + c.p.x as usize;
-                                r.traced[i].then(|| (r.rad[i], ids.pixels()[i]))
-                            });
-                            if guo::is_edge(samples, s.exposure) {
+                            let traced: Vec<usize> = cbuf
+                                .iter()
+                                .map(|c| c.p.y as usize * w as usize + c.p.x as usize)
+                                .filter(|&i| r.traced[i])
+                                .collect();
+                            let samples = guo::noise_discounted(
+                                traced
+                                    .iter()
+                                    .map(|&i| (r.rad[i], r.variance[i], ids.pixels()[i])),
+                            );
+                            if guo::is_edge(samples.iter().copied(), s.exposure) {
                                 TriangleClass::Complex
+                            } else if s.t0 > 0.0
+                                && tr.longest_edge() <= guo::CALM_EDGE
+                                && guo::is_calm(samples, s.exposure)
+                            {
+                                TriangleClass::Final
                             } else {
                                 TriangleClass::Smooth
                             }
@@ -561,10 +608,24 @@ pub fn run<O: PixelOracle>(
             last_distance = distance.clone();
         }
 
-        // 2. What each class asks for (F&P04 §4.2).
+        // 2. What each class asks for (F&P04 §4.2). A triangle with a pixel on an object
+        // none of its vertices lies on cannot shade that pixel from its own object
+        // (mesh::gouraud): it is not final, whatever its distance, and the pixel is traced.
+        let orphans: Vec<Option<usize>> = tris
+            .par_iter()
+            .enumerate()
+            .map(|(t, tr)| orphan_of(tr, &raster, t, &r.traced, ids.pixels()))
+            .collect();
+        let mut classes = classes;
         let mut work: Vec<usize> = Vec::new();
         let mut complex: Vec<usize> = Vec::new();
         for (t, tr) in tris.iter().enumerate() {
+            if let Some(i) = orphans[t] {
+                r.push(i, &mut work);
+                if classes[t] == TriangleClass::Final {
+                    classes[t] = TriangleClass::Smooth;
+                }
+            }
             match classes[t] {
                 TriangleClass::Final => {}
                 TriangleClass::Smooth => r.push_centre(tr, &raster, t, &mut work),
@@ -659,6 +720,7 @@ pub fn run<O: PixelOracle>(
             samples: r.samples_layer(iter),
             distance,
             classes: class_layer,
+            objects: Arc::clone(&ids),
             stats: r.stats.clone(),
             last: stop.is_some(),
         };
@@ -708,13 +770,11 @@ pub fn run<O: PixelOracle>(
             (nt, nr, t)
         };
         let mut next = Image::filled(w, h, Rgb::ZERO);
-        gouraud(
+        r.shade(
             &new_tris,
             &new_raster,
-            &r.rad,
-            &r.traced,
             &tri,
-            r.albedo.as_deref(),
+            ids.pixels(),
             next.pixels_mut(),
         );
         // Complex triangles of this iteration: directional fill from their traced contour.
@@ -751,6 +811,7 @@ fn noise_twin<O: PixelOracle>(
     tris: &[Tri],
     raster: &Raster,
     tri: &Triangulator,
+    ids: &[ObjectId],
     cur: &LinearImage,
     judge: &mut dyn Judge,
     cancel: &CancelToken,
@@ -806,15 +867,7 @@ fn noise_twin<O: PixelOracle>(
     };
     swap_in(r, &mut vals, &mut twin_albedo);
     let mut twin_img = Image::filled(r.w, r.h, Rgb::ZERO);
-    gouraud(
-        tris,
-        raster,
-        &r.rad,
-        &r.traced,
-        tri,
-        r.albedo.as_deref(),
-        twin_img.pixels_mut(),
-    );
+    r.shade(tris, raster, tri, ids, twin_img.pixels_mut());
     swap_in(r, &mut vals, &mut twin_albedo);
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
@@ -944,6 +997,7 @@ fn fill_complex<O: PixelOracle>(
 fn emit_only<O: PixelOracle>(
     r: &mut Run<'_, O>,
     image: LinearImage,
+    objects: Arc<Image<ObjectId>>,
     reason: Option<&str>,
     on_frame: &mut dyn FnMut(&Frame),
 ) -> Result<Frame, Cancelled> {
@@ -959,6 +1013,7 @@ fn emit_only<O: PixelOracle>(
         samples: r.samples_layer(0),
         distance: None,
         classes: Image::filled(r.w, r.h, ClassCell::None),
+        objects,
         stats: r.stats.clone(),
         last: true,
     };
@@ -1014,6 +1069,7 @@ mod tests {
             max_time: None,
             samples_per_pixel: 1,
             noise_compensation: true,
+            pixels_per_degree: 28.0,
         }
     }
 

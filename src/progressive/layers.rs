@@ -1,10 +1,11 @@
-//! The diagnostic layers of a frame as PNG: `image`, `samples`, `distance`, `classes`.
+//! The layers of a frame as PNG: `image`, `samples`, `distance`, `classes`, `objects`.
 
 use super::{ClassCell, Frame, SampleCell};
 use crate::raster::{self, CodecError, Image};
+use crate::scene::{ObjectId, BACKGROUND_ID};
 
 /// The layer names of service-api.md, in display order.
-pub const LAYERS: [&str; 4] = ["image", "samples", "distance", "classes"];
+pub const LAYERS: [&str; 5] = ["image", "samples", "distance", "classes", "objects"];
 
 /// Encodes one layer as PNG. `exposure` applies to the `image` layer.
 pub fn encode_layer(
@@ -25,6 +26,7 @@ pub fn encode_layer(
             ClassCell::Smooth => [60, 110, 230],
             ClassCell::Complex => [230, 60, 50],
         }))?,
+        "objects" => raster::encode_png_rgb8(&frame.objects.map(|&id| object_colour(id)))?,
         "distance" => match &frame.distance {
             Some(d) => raster::encode_png_rgb8(&distance_colours(d))?,
             None => return Ok(None),
@@ -42,6 +44,26 @@ pub fn encode_all(frame: &Frame) -> Result<Vec<(&'static str, Vec<u8>)>, CodecEr
         }
     }
     Ok(out)
+}
+
+/// A colour per object id, far apart for neighbouring ids (the golden-ratio hue sequence,
+/// full saturation, two brightness levels); the background is black.
+fn object_colour(id: ObjectId) -> [u8; 3] {
+    if id == BACKGROUND_ID {
+        return [0, 0, 0];
+    }
+    let hue = (f64::from(id) * 0.618_033_988_75).fract() * 6.0;
+    let value = if id % 2 == 0 { 255.0 } else { 170.0 };
+    let x = 1.0 - (hue % 2.0 - 1.0).abs();
+    let (r, g, b) = match hue as u32 {
+        0 => (1.0, x, 0.0),
+        1 => (x, 1.0, 0.0),
+        2 => (0.0, 1.0, x),
+        3 => (0.0, x, 1.0),
+        4 => (x, 0.0, 1.0),
+        _ => (1.0, 0.0, x),
+    };
+    [r, g, b].map(|c: f64| (c * value).round() as u8)
 }
 
 /// The JND colour scale of `raster::colormap` (issue #3), at the frame's size so viewers
@@ -64,6 +86,7 @@ mod tests {
             samples: Image::filled(w, h, SampleCell::New),
             distance: Some(Image::from_fn(w, h, |x, _| x as f32 * 3.0)),
             classes: Image::filled(w, h, ClassCell::Complex),
+            objects: std::sync::Arc::new(Image::from_fn(w, h, |x, _| x)),
             stats: Default::default(),
             last: true,
         };
@@ -76,7 +99,10 @@ mod tests {
         let top = *dist.get(4, 0);
         assert!(top[0] != top[2], "{top:?}");
         frame.distance = None;
-        assert_eq!(encode_all(&frame).expect("encodes").len(), 3);
+        assert_eq!(encode_all(&frame).expect("encodes").len(), 4);
+        // Neighbouring objects get different colours; the background is black.
+        assert_ne!(object_colour(1), object_colour(2));
+        assert_eq!(object_colour(BACKGROUND_ID), [0, 0, 0]);
         assert_eq!(encode_layer(&frame, "nope", 1.0).expect("ok"), None);
     }
 }

@@ -7,6 +7,7 @@
 //! iteration ("a complex triangle is of course subdivided during the next iteration").
 
 use crate::raster::{PixelCoord, Rgb};
+use crate::scene::ObjectId;
 use rayon::prelude::*;
 use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
 
@@ -353,45 +354,70 @@ pub fn untextured(c: [Rgb; 3], va: [Rgb; 3]) -> Option<[Rgb; 3]> {
     Some([0, 1, 2].map(|j| c[j] / va[j] * mean))
 }
 
-/// Gouraud shading (F&P04 §4.2): barycentric interpolation of the vertex radiances over
-/// each triangle's untraced pixels; traced pixels keep their traced value. Pixels no
+/// What the shading reads, per pixel of the image (row-major).
+#[derive(Clone, Copy)]
+pub struct ShadeInput<'a> {
+    /// Traced estimates.
+    pub radiance: &'a [Rgb],
+    /// What each vertex (traced pixel) shows and contributes to the interpolation
+    /// (`reconstruct::vertex_values`); `radiance` where `None`.
+    pub vertex: Option<&'a [Rgb]>,
+    pub traced: &'a [bool],
+    /// [`crate::tracer::PixelOracle::texture_albedo`] per pixel (textured scenes only).
+    pub albedo: Option<&'a [Option<Rgb>]>,
+    /// The object-id map (§4.1): a pixel is interpolated only from the vertices of its
+    /// triangle that lie on its own object, when it has any.
+    pub ids: Option<&'a [ObjectId]>,
+}
+
+/// Gouraud shading (F&P04 §4.2): barycentric interpolation of the vertex values over
+/// each triangle's untraced pixels; traced pixels show their vertex value. Pixels no
 /// triangle covers take their nearest vertex's value. Parallel over rows: every pixel is
 /// computed from its owner triangle alone, so the result does not depend on threads.
 ///
-/// `albedo` (per pixel, [`crate::tracer::PixelOracle::texture_albedo`]): where a pixel and
-/// its triangle's three vertices all see textured Lambertian surfaces, the interpolation
-/// is texture-modulated ([`modulated`]): the texture's detail is reproduced exactly instead
-/// of being averaged away between samples. Elsewhere, and without a map, plain Gouraud.
-#[allow(clippy::too_many_arguments)]
+/// Where the object-id map is given, a pixel takes only the vertices on its own object,
+/// their barycentric weights renormalised ([`same_object`]): one object's radiance is never
+/// interpolated onto another, and a contour inside a triangle stays as sharp as the exact
+/// id map. A pixel whose triangle has no vertex on its object (an *orphan*: the loop traces
+/// such pixels, [`orphan_of`]) keeps plain Gouraud meanwhile.
+///
+/// With `albedo`: where a pixel and its triangle's vertices see textured Lambertian
+/// surfaces, the interpolation is texture-modulated ([`modulated`]): the texture's detail
+/// is reproduced exactly instead of being averaged away between samples. Elsewhere, and
+/// without a map, plain Gouraud.
 pub fn gouraud(
     tris: &[Tri],
     raster: &Raster,
-    radiance: &[Rgb],
-    traced: &[bool],
     tri: &Triangulator,
-    albedo: Option<&[Option<Rgb>]>,
+    input: &ShadeInput,
     out: &mut [Rgb],
 ) {
     let w = raster.width as usize;
     if w == 0 {
         return;
     }
+    let vertex = input.vertex.unwrap_or(input.radiance);
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
             let i = y * w + x;
             let t = raster.owner[i];
-            if traced[i] {
-                *o = radiance[i];
+            if input.traced[i] {
+                *o = vertex[i];
                 continue;
             }
             let Some(tr) = tris.get(t as usize) else {
                 continue; // uncovered: filled below
             };
             let vi = tr.v.map(|p| p.y as usize * w + p.x as usize);
-            let c = vi.map(|j| radiance[j]);
+            let c = vi.map(|j| vertex[j]);
             *o = match tr.barycentric(x as f64, y as f64) {
                 Some(b) => {
-                    let tex = albedo.and_then(|a| Some((a[i]?, [a[vi[0]]?, a[vi[1]]?, a[vi[2]]?])));
+                    let b = input
+                        .ids
+                        .map_or(b, |ids| same_object(b, vi.map(|j| ids[j]), ids[i]));
+                    let tex = input
+                        .albedo
+                        .and_then(|a| Some((a[i]?, [a[vi[0]]?, a[vi[1]]?, a[vi[2]]?])));
                     match tex {
                         Some((a, va)) => modulated(c, va, b, a),
                         None => c[0] * b[0] as f32 + c[1] * b[1] as f32 + c[2] * b[2] as f32,
@@ -402,19 +428,89 @@ pub fn gouraud(
         }
     });
     for (i, o) in raster.owner.iter().enumerate() {
-        if *o != u32::MAX || traced[i] {
+        if *o != u32::MAX || input.traced[i] {
             continue;
         }
         out[i] = match tri.nearest((i % w) as u32, (i / w) as u32) {
-            Some(p) => radiance[p.y as usize * w + p.x as usize],
+            Some(p) => vertex[p.y as usize * w + p.x as usize],
             None => Rgb::ZERO,
         };
     }
 }
 
+/// Barycentric weights restricted to the vertices on object `id` and renormalised; equal
+/// weights over them where the pixel lies on the edge opposite them all; `b` unchanged when
+/// no vertex (an orphan) or every vertex is on `id`.
+#[must_use]
+pub fn same_object(b: [f64; 3], vid: [ObjectId; 3], id: ObjectId) -> [f64; 3] {
+    let on = vid.map(|v| v == id);
+    if on.iter().all(|&o| o) || !on.iter().any(|&o| o) {
+        return b;
+    }
+    let kept = [0, 1, 2].map(|k| if on[k] { b[k] } else { 0.0 });
+    let sum: f64 = kept.iter().sum();
+    if sum > 0.0 {
+        return kept.map(|v| v / sum);
+    }
+    let n = on.iter().filter(|&&o| o).count() as f64;
+    on.map(|o| if o { 1.0 / n } else { 0.0 })
+}
+
+/// An untraced pixel of triangle `t` whose object none of the triangle's vertices lies on
+/// (nearest the triangle's centroid), if any: interpolation cannot give it its own
+/// object's colour, so the loop traces it.
+#[must_use]
+pub fn orphan_of(
+    tr: &Tri,
+    raster: &Raster,
+    t: usize,
+    traced: &[bool],
+    ids: &[ObjectId],
+) -> Option<usize> {
+    let w = raster.width as usize;
+    let vid = tr.v.map(|p| ids[p.y as usize * w + p.x as usize]);
+    let (cx, cy) = tr.centroid();
+    raster
+        .pixels_of(t)
+        .iter()
+        .map(|&i| i as usize)
+        .filter(|&i| !traced[i] && !vid.contains(&ids[i]))
+        .min_by(|&a, &b| {
+            let d = |i: usize| ((i % w) as f64 - cx).powi(2) + ((i / w) as f64 - cy).powi(2);
+            d(a).total_cmp(&d(b))
+        })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn plain_input<'a>(
+        radiance: &'a [Rgb],
+        traced: &'a [bool],
+        albedo: Option<&'a [Option<Rgb>]>,
+    ) -> ShadeInput<'a> {
+        ShadeInput {
+            radiance,
+            vertex: None,
+            traced,
+            albedo,
+            ids: None,
+        }
+    }
+
+    #[test]
+    fn a_pixel_takes_only_the_vertices_on_its_own_object() {
+        let b = [0.5, 0.25, 0.25];
+        assert_eq!(same_object(b, [1, 1, 1], 1), b);
+        assert_eq!(
+            same_object(b, [2, 2, 2], 1),
+            b,
+            "an orphan keeps plain weights"
+        );
+        assert_eq!(same_object(b, [1, 2, 1], 1), [0.5 / 0.75, 0.0, 0.25 / 0.75]);
+        assert_eq!(same_object([0.0, 1.0, 0.0], [1, 2, 1], 1), [0.5, 0.0, 0.5]);
+    }
 
     fn corners(w: u32, h: u32) -> Vec<PixelCoord> {
         vec![
@@ -459,7 +555,7 @@ mod tests {
             traced[i] = true;
         }
         let mut out = vec![Rgb::splat(-1.0); n];
-        gouraud(&tris, &r, &rad, &traced, &t, None, &mut out);
+        gouraud(&tris, &r, &t, &plain_input(&rad, &traced, None), &mut out);
         for y in 0..h {
             for x in 0..w {
                 let d = out[(y * w + x) as usize] - f(x, y);
@@ -590,9 +686,15 @@ mod tests {
                 .fold(0f32, f32::max)
         };
         let mut plain = vec![Rgb::ZERO; n];
-        gouraud(&tris, &r, &rad, &traced, &t, None, &mut plain);
+        gouraud(&tris, &r, &t, &plain_input(&rad, &traced, None), &mut plain);
         let mut modu = vec![Rgb::ZERO; n];
-        gouraud(&tris, &r, &rad, &traced, &t, Some(&albedo), &mut modu);
+        gouraud(
+            &tris,
+            &r,
+            &t,
+            &plain_input(&rad, &traced, Some(&albedo)),
+            &mut modu,
+        );
         assert!(err(&plain, 0) > 0.3, "plain Gouraud blurs the checker");
         assert!(
             err(&modu, 0) < 1e-4 && err(&modu, 1) < 1e-4,
@@ -611,7 +713,13 @@ mod tests {
         let mut partial = albedo.clone();
         partial[5 * w as usize + 7] = None;
         let mut out = vec![Rgb::ZERO; n];
-        gouraud(&tris, &r, &rad, &traced, &t, Some(&partial), &mut out);
+        gouraud(
+            &tris,
+            &r,
+            &t,
+            &plain_input(&rad, &traced, Some(&partial)),
+            &mut out,
+        );
         assert_eq!(out[5 * w as usize + 7], plain[5 * w as usize + 7]);
         assert_eq!(out[5 * w as usize + 8], modu[5 * w as usize + 8]);
     }

@@ -2,14 +2,17 @@
 //!
 //! One entry point, [`render`], serves the command line, the service and the benches:
 //! it yields a [`Frame`] per iteration through a callback and returns the final one.
-//! Owned by issue #4 (the reference mode below is the shared skeleton).
 //!
 //! Pipeline (F&P04 §4, vision-model.md §6), see [`driver`]:
 //! * [`seeding`] — §4.1: object-id map (one ray per pixel), contour map, edge-avoiding
 //!   Gaussian probability map (zero ON contours, raised AROUND them), a deterministic draw
 //!   with `render.seed`, plus the four image corners so the triangulation covers the image.
 //! * [`mesh`] — spade Delaunay of every traced pixel (pixel centres = integer points) and
-//!   Gouraud shading by bounding-box rasterisation (each pixel owned by one triangle).
+//!   Gouraud shading by bounding-box rasterisation (each pixel owned by one triangle),
+//!   each pixel interpolated only from the vertices on its own object (exact id map).
+//! * [`reconstruct`] — what each vertex contributes: its estimate averaged with similar
+//!   neighbours on its object until the interpolated Monte Carlo noise is no more visible
+//!   than the reference's grain at the declared pixels per degree (our extension).
 //! * [`classify`] — mean block-map distance per triangle; final `d < T0` (strict),
 //!   smooth `T0 ≤ d < T1`, complex `d ≥ T1`; T1 = `progressive.t1` or the mean of the
 //!   first map, raised to `T0·(1+1e-3)` (§2.9).
@@ -34,9 +37,11 @@
 //!   triangle is subdivided along its traced contour next iteration; its directional fill
 //!   is shown in the frame that follows its contour tracing, then replaced by the finer
 //!   triangulation's Gouraud shading (which the metric then judges).
-//! * Pixels are traced once; the image keeps traced values bit for bit, so T0 = 0 ends
-//!   with the reference image exactly (non-finite oracle values are mapped to finite ones:
-//!   NaN → 0, +∞ → 1e30, so one bad sample cannot spread through the interpolation).
+//! * Pixels are traced once. Until every pixel is traced, a traced pixel shows its
+//!   vertex's reconstructed value ([`reconstruct`]); once all are, the image is the traced
+//!   estimates bit for bit, so T0 = 0 ends with the reference image exactly (non-finite
+//!   oracle values are mapped to finite ones: NaN → 0, +∞ → 1e30, so one bad sample
+//!   cannot spread through the interpolation).
 //! * 1-pixel-wide images have no triangle (collinear samples): they are traced whole.
 //! * Stop: every triangle final (no work), every pixel traced, `max_iterations` frames,
 //!   `RenderOptions::max_pixels` (the last tracing step is truncated to the budget) or
@@ -50,6 +55,7 @@ pub mod guo;
 pub mod layers;
 pub mod mesh;
 pub mod noise;
+pub mod reconstruct;
 pub mod seeding;
 pub mod stats;
 pub mod uniform;
@@ -58,9 +64,10 @@ pub use stats::{IterationStats, RenderStats};
 
 use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage};
-use crate::scene::{RenderMode, Scene};
+use crate::scene::{ObjectId, RenderMode, Scene};
 use crate::tracer::{self, PixelOracle};
 use crate::vision::{DisplayModel, VisionModel};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// §4.2's three classes of triangle.
@@ -108,6 +115,10 @@ pub struct Frame {
     /// The perceptual distance map between this frame and the previous one (JNDs).
     pub distance: Option<Image<f32>>,
     pub classes: Image<ClassCell>,
+    /// The object-id map (§4.1: the object the ray through each pixel centre hits), shared
+    /// by every frame of a render: the `objects` layer, for compositing and for judging
+    /// whether objects kept their colour.
+    pub objects: Arc<Image<ObjectId>>,
     pub stats: RenderStats,
     /// True for the last frame of a render.
     pub last: bool,
@@ -199,6 +210,7 @@ fn settings(scene: &Scene, opts: &RenderOptions, oracle: driver::Oracle) -> driv
         max_time: opts.max_time,
         samples_per_pixel: scene.render.samples_per_pixel,
         noise_compensation: opts.noise_compensation.unwrap_or(true),
+        pixels_per_degree: scene.display.pixels_per_degree,
     }
 }
 
@@ -230,6 +242,7 @@ fn render_reference(
         samples: Image::filled(w, h, SampleCell::New),
         distance: None,
         classes: Image::filled(w, h, ClassCell::None),
+        objects: Arc::new(tracer::object_id_map(oracle)),
         stats,
         last: true,
     };

@@ -61,7 +61,7 @@ use super::mesh::Raster;
 use crate::raster::PixelCoord;
 use crate::raster::Rgb;
 use crate::scene::ObjectId;
-use crate::tracer::PixelOracle;
+use crate::tracer::{Estimate, PixelOracle};
 
 /// XORed into the render seed for the twins. Distinct from the bench's independent
 /// reference offset (0x9E37_79B9_7F4A_7C15), so the twins are not that reference's pixels.
@@ -113,6 +113,12 @@ impl<O: PixelOracle> PixelOracle for Twin<'_, O> {
     }
     fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
         self.inner.radiance_albedo_with(p, self.samples, self.seed)
+    }
+    fn estimate_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Estimate {
+        self.inner.estimate_with(p, samples, seed)
+    }
+    fn estimate(&self, p: PixelCoord) -> Estimate {
+        self.inner.estimate_with(p, self.samples, self.seed)
     }
     fn object_id(&self, p: PixelCoord) -> ObjectId {
         self.inner.object_id(p)

@@ -968,6 +968,7 @@ mod tests {
             samples: Image::filled(1, 1, SampleCell::New),
             distance: None,
             classes: Image::filled(1, 1, ClassCell::None),
+            objects: std::sync::Arc::new(Image::filled(1, 1, 0)),
             stats: RenderStats {
                 per_iteration: vec![IterationStats {
                     iteration,

@@ -154,7 +154,7 @@ fn rfc3339_millis(t: time::OffsetDateTime) -> String {
 }
 
 /// Names of the stored layer files; `image.exr` is the linear HDR image.
-pub const LAYER_FILES: [&str; 4] = ["image", "samples", "distance", "classes"];
+pub const LAYER_FILES: [&str; 5] = ["image", "samples", "distance", "classes", "objects"];
 
 #[derive(Clone, Debug)]
 pub struct Store {

@@ -57,11 +57,42 @@ pub trait PixelOracle: Sync {
     fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
         (self.radiance(p), None)
     }
+    /// [`PixelOracle::radiance_albedo_with`] and the variance of the estimate: what the
+    /// progressive loop needs to know how far to trust a vertex. An oracle that cannot
+    /// tell reports a variance of 0 (exact values).
+    fn estimate_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Estimate {
+        let (radiance, albedo) = self.radiance_albedo_with(p, samples, seed);
+        Estimate {
+            radiance,
+            variance: Rgb::ZERO,
+            albedo,
+        }
+    }
+    /// [`PixelOracle::estimate_with`] with the scene's samples and seed.
+    fn estimate(&self, p: PixelCoord) -> Estimate {
+        let (radiance, albedo) = self.radiance_and_albedo(p);
+        Estimate {
+            radiance,
+            variance: Rgb::ZERO,
+            albedo,
+        }
+    }
     /// Whether any pixel can have a [`PixelOracle::texture_albedo`] (a scene without
     /// textures builds no map and pays nothing).
     fn has_textures(&self) -> bool {
         false
     }
+}
+
+/// One pixel's estimate (a mean of paths) and how far to trust it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Estimate {
+    pub radiance: Rgb,
+    /// Variance of the mean, per channel: the paths' sample variance over their count.
+    /// `f32::INFINITY` when fewer than two paths were kept (unknown); 0 from an exact oracle.
+    pub variance: Rgb,
+    /// [`PixelOracle::radiance_albedo_with`]'s albedo (textured scenes only).
+    pub albedo: Option<Rgb>,
 }
 
 /// Sub-pixel positions of [`PixelOracle::texture_albedo`]: a 2×2 stratified pattern over
@@ -103,6 +134,15 @@ pub fn trace_pixels_albedo(
     cancel: &CancelToken,
 ) -> Result<Vec<(Rgb, Option<Rgb>)>, Cancelled> {
     per_pixel(pixels, cancel, |p| oracle.radiance_and_albedo(p))
+}
+
+/// [`trace_pixels`] with [`PixelOracle::estimate`].
+pub fn trace_estimates(
+    oracle: &impl PixelOracle,
+    pixels: &[PixelCoord],
+    cancel: &CancelToken,
+) -> Result<Vec<Estimate>, Cancelled> {
+    per_pixel(pixels, cancel, |p| oracle.estimate(p))
 }
 
 /// `f` over `pixels` in parallel batches of at most [`BATCH`], checking `cancel` between
@@ -374,17 +414,14 @@ impl PathTracer {
 }
 
 impl PathTracer {
-    /// [`PixelOracle::radiance_with`]; with `ALBEDO`, also the mean first-hit texture
-    /// albedo over the same (kept) samples, `None` unless every one hit a textured
-    /// Lambertian surface ([`PixelOracle::radiance_albedo_with`]). The radiance is the
-    /// same bit for bit either way.
-    fn estimate<const ALBEDO: bool>(
-        &self,
-        p: PixelCoord,
-        samples: u32,
-        seed: u64,
-    ) -> (Rgb, Option<Rgb>) {
+    /// [`PixelOracle::estimate_with`]; the albedo (the mean first-hit texture albedo over
+    /// the same kept samples, `None` unless every one hit a textured Lambertian surface,
+    /// [`PixelOracle::radiance_albedo_with`]) only with `ALBEDO`. The radiance is the same
+    /// bit for bit either way, and the variance is summed beside it without touching it.
+    fn sample_mean<const ALBEDO: bool>(&self, p: PixelCoord, samples: u32, seed: u64) -> Estimate {
         let mut sum = Vec3::ZERO;
+        // Second moments for the variance (f64: a sum of squares of HDR values).
+        let mut sq = glam::DVec3::ZERO;
         // Without ALBEDO it stays `None` (nothing summed).
         let mut albedo = ALBEDO.then_some(Vec3::ZERO);
         let mut kept = 0u32;
@@ -398,6 +435,8 @@ impl PathTracer {
             };
             if v.is_finite() {
                 sum += v;
+                let d = v.as_dvec3();
+                sq += d * d;
                 kept += 1;
                 albedo = albedo.zip(a).map(|(s, a)| s + a);
             }
@@ -407,15 +446,30 @@ impl PathTracer {
                 .fetch_add(u64::from(samples - kept), Ordering::Relaxed);
         }
         if kept == 0 {
-            return (Rgb::ZERO, None);
+            return Estimate {
+                radiance: Rgb::ZERO,
+                variance: Rgb::INFINITY,
+                albedo: None,
+            };
         }
+        let k = f64::from(kept);
+        let s1 = sum.as_dvec3();
+        let variance = if kept < 2 {
+            Rgb::INFINITY
+        } else {
+            ((sq - s1 * s1 / k).max(glam::DVec3::ZERO) / (k * (k - 1.0))).as_vec3()
+        };
         let albedo = albedo.map(|s| s / kept as f32);
         let mean = sum / kept as f32;
         // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
-        if mean.is_finite() {
-            (mean, albedo)
-        } else {
-            (Rgb::ZERO, albedo)
+        Estimate {
+            radiance: if mean.is_finite() { mean } else { Rgb::ZERO },
+            variance: if variance.is_finite() {
+                variance
+            } else {
+                Rgb::INFINITY
+            },
+            albedo,
         }
     }
 
@@ -445,7 +499,7 @@ impl PixelOracle for PathTracer {
     /// sample index): a pure function of its arguments. Samples that come out NaN or
     /// infinite are dropped and the mean is taken over the others (never returned).
     fn radiance_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Rgb {
-        self.estimate::<false>(p, samples, seed).0
+        self.sample_mean::<false>(p, samples, seed).radiance
     }
 
     fn has_textures(&self) -> bool {
@@ -473,11 +527,24 @@ impl PixelOracle for PathTracer {
         if !self.features.has_texture {
             return (self.radiance_with(p, samples, seed), None);
         }
-        self.estimate::<true>(p, samples, seed)
+        let e = self.sample_mean::<true>(p, samples, seed);
+        (e.radiance, e.albedo)
     }
 
     fn radiance_and_albedo(&self, p: PixelCoord) -> (Rgb, Option<Rgb>) {
         self.radiance_albedo_with(p, self.samples_per_pixel, self.seed)
+    }
+
+    fn estimate_with(&self, p: PixelCoord, samples: u32, seed: u64) -> Estimate {
+        if self.features.has_texture {
+            self.sample_mean::<true>(p, samples, seed)
+        } else {
+            self.sample_mean::<false>(p, samples, seed)
+        }
+    }
+
+    fn estimate(&self, p: PixelCoord) -> Estimate {
+        self.estimate_with(p, self.samples_per_pixel, self.seed)
     }
 
     fn object_id(&self, p: PixelCoord) -> ObjectId {

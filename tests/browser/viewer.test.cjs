@@ -190,6 +190,9 @@ async function main() {
     await page.check("#layer-classes");
     await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "classes");
     check(/complex/.test(await page.textContent("#legend")), "the classes legend is shown");
+    await page.check("#layer-objects");
+    await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "objects");
+    check(/object/.test(await page.textContent("#legend")), "the objects legend is shown");
     await page.check("#layer-distance");
     await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "distance");
     await page.screenshot({ path: shotPath, fullPage: true });
