@@ -243,7 +243,7 @@ fn scene(rng: &mut Pcg64, name: &str, i: usize) -> Value {
         materials.insert(n, m);
     }
     let camera = if room {
-        json!({"position": [0.0, r3(st.h * 0.5), 0.05], "look_at": [0.0, r3(st.h * 0.35), d],
+        json!({"position": [0.0, r3(st.h * 0.5), 0.05], "look_at": [0.0, r3(st.h * 0.2), d],
                "fov_y": r3(rng.random_range(55.0..=75.0))})
     } else {
         json!({"position": [r3(rng.random_range(-1.0..=1.0)), r3(rng.random_range(1.0..=2.5)), -5.0],
@@ -258,7 +258,7 @@ fn scene(rng: &mut Pcg64, name: &str, i: usize) -> Value {
             "peak_luminance": r3(rng.random_range(80.0..=400.0)),
             "black_luminance": r3(rng.random_range(0.1..=1.0)),
             "exposure": r3(log_uniform(rng, 1.0 / 16.0, 8.0)),
-            "pixels_per_degree": r3(rng.random_range(PPD_RANGE.0..=PPD_RANGE.1)),
+            "pixels_per_degree": (rng.random_range(PPD_RANGE.0..=PPD_RANGE.1) * 10.0).round() / 10.0,
         },
         "materials": materials,
         "objects": objects,

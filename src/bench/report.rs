@@ -141,7 +141,7 @@ fn object_cell(c: &Condition) -> String {
         .max_by(|a, b| a.ratio().total_cmp(&b.ratio()))
         .expect("not empty");
     format!(
-        "{:.2} (object {}: {:.1}% / {:.1}%; {} judged) {}",
+        "{:.2} (objects[{}]: {:.1}% / {:.1}%; {} judged) {}",
         c.worst_object_ratio,
         worst.object,
         worst.progressive_error * 100.0,
