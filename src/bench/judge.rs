@@ -102,7 +102,7 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
     let floor = flip(case.judge, &reference, exposure, ppd).mean;
     let objects = object_colours(case.ids, &prog.image, &reference, case.truth, exposure);
 
-    let sheet = format!("sheets/{}-{}ppd.png", scene.name, ppd);
+    let sheet = format!("sheets/{}-{}ppd.png", file_stem(&scene.name), ppd);
     let path = out_dir.join(&sheet);
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -192,6 +192,26 @@ fn render_progressive(scene: &Scene, case: &Case) -> anyhow::Result<progressive:
     )?)
 }
 
+/// A scene name as a file name: anything but ASCII letters, digits, `-`, `_` and `.`
+/// becomes `_`, so no name (`../x`, `a/b`) can place a file outside the sheets folder.
+pub(crate) fn file_stem(name: &str) -> String {
+    let stem: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if stem.is_empty() || stem.chars().all(|c| c == '.') {
+        format!("scene{stem}")
+    } else {
+        stem
+    }
+}
+
 /// `a / b`, where two identical images (b = 0: a reference equal to its truth, as on a
 /// black scene) make a = 0 too and count as equal (1), not as NaN.
 fn ratio(a: f64, b: f64) -> f64 {
@@ -207,6 +227,16 @@ fn ratio(a: f64, b: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_scene_name_cannot_leave_the_sheets_folder() {
+        assert_eq!(file_stem("cornell-box"), "cornell-box");
+        assert_eq!(file_stem("../../etc/x"), ".._.._etc_x");
+        assert_eq!(file_stem("a b/c\\d"), "a_b_c_d");
+        assert_eq!(file_stem(""), "scene");
+        assert_eq!(file_stem(".."), "scene..");
+        assert_eq!(file_stem("é"), "_");
+    }
 
     #[test]
     fn a_ratio_of_two_perfect_images_is_one_and_never_nan() {

@@ -288,43 +288,55 @@ fn run_corpus(cfg: &BenchConfig, c: &CorpusConfig) -> anyhow::Result<Vec<CorpusR
             s.display.pixels_per_degree,
             s.display.exposure
         );
-        let cancel = CancelToken::new();
-        let tracer = PathTracer::new(s);
-        let truth = truth::converged(s, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
-        let judge = independent_reference(&tracer, s, &cancel)?;
-        let ids = tracer::object_id_map(&tracer);
-        let case = Case {
-            scene: s,
-            tracer: &tracer,
-            truth: &truth.image,
-            judge: &judge,
-            ids: &ids,
-            runs: timing_runs(cfg),
-            cancel: &cancel,
-        };
-        let declared = s.display.pixels_per_degree;
-        let mut ppds = vec![declared];
-        if c.at_conditions {
-            ppds.extend(cfg.conditions.iter().filter(|&&p| p != declared));
-        }
-        let conditions = ppds
-            .into_iter()
-            .map(|ppd| judge::at_condition(&case, ppd, &cfg.out_dir))
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        let r = CorpusResult {
-            scene: s.name.clone(),
-            file,
-            width: s.width,
-            height: s.height,
-            spp: s.render.samples_per_pixel,
-            exposure: s.display.exposure,
-            declared_ppd: declared,
-            conditions,
-        };
+        let r = judge_corpus_scene(cfg, c, &loaded, file)?;
         eprintln!("{}", report::corpus_line(&r));
         results.push(r);
     }
     Ok(results)
+}
+
+/// One corpus scene against its truth, at its declared ppd (and the standard conditions
+/// if asked).
+fn judge_corpus_scene(
+    cfg: &BenchConfig,
+    c: &CorpusConfig,
+    loaded: &Loaded,
+    file: String,
+) -> anyhow::Result<CorpusResult> {
+    let s = &loaded.scene;
+    let cancel = CancelToken::new();
+    let tracer = PathTracer::new(s);
+    let truth = truth::converged(s, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
+    let judge = independent_reference(&tracer, s, &cancel)?;
+    let ids = tracer::object_id_map(&tracer);
+    let case = Case {
+        scene: s,
+        tracer: &tracer,
+        truth: &truth.image,
+        judge: &judge,
+        ids: &ids,
+        runs: timing_runs(cfg),
+        cancel: &cancel,
+    };
+    let declared = s.display.pixels_per_degree;
+    let mut ppds = vec![declared];
+    if c.at_conditions {
+        ppds.extend(cfg.conditions.iter().filter(|&&p| p != declared));
+    }
+    let conditions = ppds
+        .into_iter()
+        .map(|ppd| judge::at_condition(&case, ppd, &cfg.out_dir))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(CorpusResult {
+        scene: s.name.clone(),
+        file,
+        width: s.width,
+        height: s.height,
+        spp: s.render.samples_per_pixel,
+        exposure: s.display.exposure,
+        declared_ppd: declared,
+        conditions,
+    })
 }
 
 /// A scene as the bench runs it, and the document it came from (the truth's cache key).
@@ -562,20 +574,7 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
         runs,
         cancel: &cancel,
     };
-    let (t0s, sweep_ppds): (&[f32], &[f32]) = if cfg.quick {
-        (&[0.5, 1.0, 2.0], &QUICK_CONDITIONS[..1])
-    } else {
-        (&[0.25, 0.5, 1.0, 2.0, 4.0], &SWEEP_CONDITIONS)
-    };
-    let mut sweep = Vec::new();
-    for &p in sweep_ppds {
-        sweep.extend(judge::sweep(&case, &reference, reference_ms, p, t0s)?);
-    }
-    let conditions = cfg
-        .conditions
-        .iter()
-        .map(|&p| judge::at_condition(&case, p, &cfg.out_dir))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (sweep, conditions) = against_truth(&case, &reference, reference_ms, cfg)?;
 
     // "Dark scenes cost less": the same scene shown 16× brighter must trace more pixels.
     let exposure_check = if scene.name.contains("cellar") {
@@ -612,6 +611,31 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
         time_split,
         targets,
     })
+}
+
+/// A bundled scene against its truth: the t0 sweep at [`SWEEP_CONDITIONS`] (three t0 at
+/// the first quick condition in quick mode), then every condition of the run.
+fn against_truth(
+    case: &Case,
+    reference: &LinearImage,
+    reference_ms: f64,
+    cfg: &BenchConfig,
+) -> anyhow::Result<(Vec<SweepPoint>, Vec<Condition>)> {
+    let (t0s, sweep_ppds): (&[f32], &[f32]) = if cfg.quick {
+        (&[0.5, 1.0, 2.0], &QUICK_CONDITIONS[..1])
+    } else {
+        (&[0.25, 0.5, 1.0, 2.0, 4.0], &SWEEP_CONDITIONS)
+    };
+    let mut sweep = Vec::new();
+    for &p in sweep_ppds {
+        sweep.extend(judge::sweep(case, reference, reference_ms, p, t0s)?);
+    }
+    let conditions = cfg
+        .conditions
+        .iter()
+        .map(|&p| judge::at_condition(case, p, &cfg.out_dir))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((sweep, conditions))
 }
 
 /// [`TimeSplit`]: the progressive run's traced pixels traced again, alone (median of
@@ -728,7 +752,9 @@ fn write_images(
     imgs: &[(&str, &LinearImage)],
 ) -> anyhow::Result<()> {
     for (name, img) in imgs {
-        let p = cfg.out_dir.join(format!("{}-{name}.png", scene.name));
+        let p = cfg
+            .out_dir
+            .join(format!("{}-{name}.png", judge::file_stem(&scene.name)));
         std::fs::write(
             &p,
             crate::raster::encode_png_display(img, scene.display.exposure)?,

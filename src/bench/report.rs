@@ -266,136 +266,165 @@ fn sweep_checks(scenes: &[SceneResult]) -> Vec<SweepCheck> {
     out
 }
 
-/// The share of `conds` that pass (0 of 0 is reported as such, and as not met).
+/// How many of `conds` pass `pass`.
 fn share(conds: &[&Condition], pass: impl Fn(&Condition) -> bool) -> (usize, usize) {
     (conds.iter().filter(|c| pass(c)).count(), conds.len())
+}
+
+/// "n of m", with the misses named when there are any.
+fn count_with_misses(n: usize, of: usize, misses: &[String]) -> String {
+    if misses.is_empty() {
+        format!("{n} of {of}")
+    } else {
+        format!("{n} of {of}; missed: {}", misses.join(", "))
+    }
+}
+
+/// "n of m (p %)", or "none judged" for an empty set (never NaN %).
+fn count_with_share(n: usize, of: usize) -> String {
+    if of == 0 {
+        "none judged".into()
+    } else {
+        format!("{n} of {of} ({:.0} %)", 100.0 * n as f64 / of as f64)
+    }
+}
+
+fn q_time_target(what: &str) -> String {
+    format!("{what}: Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time")
 }
 
 /// Issue 13's targets, checked on this run's numbers.
 #[must_use]
 pub fn summary(study: &Study) -> Vec<TargetCheck> {
-    let mut t = Vec::new();
-    let bundled: Vec<&Condition> = study.scenes.iter().flat_map(|r| &r.conditions).collect();
-    let mut ppds: Vec<f32> = bundled.iter().map(|c| c.ppd).collect();
+    let mut t = bundled_targets(&study.scenes);
+    if !study.corpus.is_empty() {
+        t.extend(corpus_targets(&study.corpus));
+    }
+    t.extend(sweep_target(&study.scenes));
+    t
+}
+
+/// Every bundled scene passes at each condition; objects keep their colour.
+fn bundled_targets(scenes: &[SceneResult]) -> Vec<TargetCheck> {
+    let all: Vec<(&SceneResult, &Condition)> = scenes
+        .iter()
+        .flat_map(|r| r.conditions.iter().map(move |c| (r, c)))
+        .collect();
+    let mut ppds: Vec<f32> = all.iter().map(|(_, c)| c.ppd).collect();
     ppds.sort_by(f32::total_cmp);
     ppds.dedup();
-    for &ppd in &ppds {
-        let at: Vec<&Condition> = bundled.iter().copied().filter(|c| c.ppd == ppd).collect();
-        let (n, of) = share(&at, Condition::passes);
-        let misses: Vec<String> = study
-            .scenes
-            .iter()
-            .flat_map(|r| r.conditions.iter().map(move |c| (r, c)))
-            .filter(|(_, c)| c.ppd == ppd && !c.passes())
-            .map(|(r, c)| format!("{} Q {:.2} at {:.2}×", r.scene, c.q, c.time_ratio))
-            .collect();
-        t.push(TargetCheck {
-            target: format!("bundled scenes at {ppd} ppd: Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time"),
-            met: n == of && of > 0,
-            detail: format!(
-                "{n} of {of}{}",
-                if misses.is_empty() {
-                    String::new()
-                } else {
-                    format!("; missed: {}", misses.join(", "))
-                }
-            ),
-        });
-    }
-    if !study.corpus.is_empty() {
-        let declared: Vec<&Condition> = study.corpus.iter().map(|r| &r.conditions[0]).collect();
-        let (n, of) = share(&declared, Condition::passes);
-        t.push(TargetCheck {
-            target: format!(
-                "corpus at each scene's declared ppd: ≥ 90 % with Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time"
-            ),
-            met: n as f64 >= 0.9 * of as f64,
-            detail: format!("{n} of {of} ({:.0} %)", 100.0 * n as f64 / of as f64),
-        });
-        let all: Vec<&Condition> = study.corpus.iter().flat_map(|r| &r.conditions).collect();
-        let mut corpus_ppds: Vec<f32> = study
-            .corpus
-            .iter()
-            .flat_map(|r| r.conditions.iter().skip(1).map(|c| c.ppd))
-            .collect();
-        corpus_ppds.sort_by(f32::total_cmp);
-        corpus_ppds.dedup();
-        for ppd in corpus_ppds {
-            // A scene declared at this ppd is judged there once (its declared condition).
-            let at: Vec<&Condition> = study
-                .corpus
+    let mut t: Vec<TargetCheck> = ppds
+        .iter()
+        .map(|&ppd| {
+            let at: Vec<_> = all.iter().filter(|(_, c)| c.ppd == ppd).collect();
+            let misses: Vec<String> = at
                 .iter()
-                .filter_map(|r| r.conditions.iter().find(|c| c.ppd == ppd))
+                .filter(|(_, c)| !c.passes())
+                .map(|(r, c)| format!("{} Q {:.2} at {:.2}×", r.scene, c.q, c.time_ratio))
                 .collect();
-            let (n, of) = share(&at, Condition::passes);
-            t.push(TargetCheck {
-                target: format!(
-                    "corpus at {ppd} ppd: ≥ 90 % with Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time"
-                ),
-                met: n as f64 >= 0.9 * of as f64,
-                detail: format!("{n} of {of} ({:.0} %)", 100.0 * n as f64 / of as f64),
-            });
-        }
-        let mut times: Vec<f64> = declared.iter().map(|c| c.time_ratio).collect();
-        let med = median(&mut times);
-        t.push(TargetCheck {
-            target: "median corpus time (declared ppd) ≤ 0.35× the reference".into(),
-            met: med <= 0.35,
-            detail: format!("{med:.2}×"),
-        });
-        let (n, of) = share(&all, Condition::objects_pass);
-        t.push(TargetCheck {
-            target: "corpus: objects keep their colour (every scene and condition)".into(),
-            met: n == of,
-            detail: format!("{n} of {of} pass ({:.0} %)", 100.0 * n as f64 / of as f64),
-        });
-    }
-    if !bundled.is_empty() {
-        let (n, of) = share(&bundled, Condition::objects_pass);
+            TargetCheck {
+                target: q_time_target(&format!("bundled scenes at {ppd} ppd")),
+                met: misses.is_empty(),
+                detail: count_with_misses(at.len() - misses.len(), at.len(), &misses),
+            }
+        })
+        .collect();
+    if !all.is_empty() {
+        let misses: Vec<String> = all
+            .iter()
+            .filter(|(_, c)| !c.objects_pass())
+            .map(|(r, c)| format!("{} at {} ppd ({:.2})", r.scene, c.ppd, c.worst_object_ratio))
+            .collect();
         t.push(TargetCheck {
             target: "bundled scenes: objects keep their colour (every scene and condition)".into(),
-            met: n == of,
-            detail: format!("{n} of {of} pass"),
-        });
-    }
-    let sweeps = sweep_checks(&study.scenes);
-    if !sweeps.is_empty() {
-        let misses: Vec<String> = sweeps
-            .iter()
-            .filter(|s| !s.met())
-            .map(|s| {
-                format!(
-                    "{} {} ppd ({}, cheapest {:.2}×, best Q {:.2})",
-                    s.scene,
-                    s.ppd,
-                    if s.monotone {
-                        "monotone"
-                    } else {
-                        "not monotone"
-                    },
-                    s.cheapest_time,
-                    s.best_q
-                )
-            })
-            .collect();
-        let n = sweeps.len() - misses.len();
-        t.push(TargetCheck {
-            target: format!(
-                "t0 sweep monotone, from ≤ {SWEEP_PREVIEW_TIME}× time to Q ≤ {SWEEP_BEST_Q}"
-            ),
             met: misses.is_empty(),
-            detail: format!(
-                "{n} of {} scene/ppd sweeps{}",
-                sweeps.len(),
-                if misses.is_empty() {
-                    String::new()
-                } else {
-                    format!("; missed: {}", misses.join(", "))
-                }
-            ),
+            detail: count_with_misses(all.len() - misses.len(), all.len(), &misses),
         });
     }
     t
+}
+
+/// ≥ 90 % of the corpus passes at its declared ppd (and at each standard condition it
+/// was judged at); the median time; objects keep their colour.
+fn corpus_targets(corpus: &[CorpusResult]) -> Vec<TargetCheck> {
+    let declared: Vec<&Condition> = corpus.iter().map(|r| &r.conditions[0]).collect();
+    let mut at_ppd = vec![("each scene's declared ppd".to_string(), declared.clone())];
+    let mut ppds: Vec<f32> = corpus
+        .iter()
+        .flat_map(|r| r.conditions.iter().skip(1).map(|c| c.ppd))
+        .collect();
+    ppds.sort_by(f32::total_cmp);
+    ppds.dedup();
+    for ppd in ppds {
+        // A scene declared at this ppd is judged there once (its declared condition).
+        let at = corpus
+            .iter()
+            .filter_map(|r| r.conditions.iter().find(|c| c.ppd == ppd))
+            .collect();
+        at_ppd.push((format!("{ppd} ppd"), at));
+    }
+    let mut t: Vec<TargetCheck> = at_ppd
+        .into_iter()
+        .map(|(label, at)| {
+            let (n, of) = share(&at, Condition::passes);
+            TargetCheck {
+                target: q_time_target(&format!("corpus at {label}, ≥ 90 % of scenes")),
+                met: of > 0 && n as f64 >= 0.9 * of as f64,
+                detail: count_with_share(n, of),
+            }
+        })
+        .collect();
+    let mut times: Vec<f64> = declared.iter().map(|c| c.time_ratio).collect();
+    let med = median(&mut times);
+    t.push(TargetCheck {
+        target: "median corpus time (declared ppd) ≤ 0.35× the reference".into(),
+        met: med <= 0.35,
+        detail: format!("{med:.2}×"),
+    });
+    let all: Vec<&Condition> = corpus.iter().flat_map(|r| &r.conditions).collect();
+    let (n, of) = share(&all, Condition::objects_pass);
+    t.push(TargetCheck {
+        target: "corpus: objects keep their colour (every scene and condition)".into(),
+        met: n == of,
+        detail: count_with_share(n, of),
+    });
+    t
+}
+
+/// Every bundled scene's t0 sweep is monotone and spans a cheap preview to Q ≤ 0.9.
+fn sweep_target(scenes: &[SceneResult]) -> Option<TargetCheck> {
+    let sweeps = sweep_checks(scenes);
+    if sweeps.is_empty() {
+        return None;
+    }
+    let misses: Vec<String> = sweeps
+        .iter()
+        .filter(|s| !s.met())
+        .map(|s| {
+            format!(
+                "{} {} ppd ({}, cheapest {:.2}×, best Q {:.2})",
+                s.scene,
+                s.ppd,
+                if s.monotone {
+                    "monotone"
+                } else {
+                    "not monotone"
+                },
+                s.cheapest_time,
+                s.best_q
+            )
+        })
+        .collect();
+    Some(TargetCheck {
+        target: format!(
+            "t0 sweep monotone, from ≤ {SWEEP_PREVIEW_TIME}× time to Q ≤ {SWEEP_BEST_Q}"
+        ),
+        met: misses.is_empty(),
+        detail: format!(
+            "{} scene/ppd sweeps",
+            count_with_misses(sweeps.len() - misses.len(), sweeps.len(), &misses)
+        ),
+    })
 }
 
 /// The command line's flags that shaped this run, as typed.
@@ -407,8 +436,12 @@ fn flags(cfg: &BenchConfig) -> String {
     if cfg.spp_factor != 1 {
         let _ = write!(f, " --spp-factor {}", cfg.spp_factor);
     }
-    let defaults = BenchConfig::new(Default::default(), Default::default(), cfg.quick);
-    if cfg.conditions != defaults.conditions {
+    let defaults: &[f32] = if cfg.quick {
+        &super::QUICK_CONDITIONS
+    } else {
+        &super::STANDARD_CONDITIONS
+    };
+    if cfg.conditions != defaults {
         let list: Vec<String> = cfg.conditions.iter().map(f32::to_string).collect();
         let _ = write!(f, " --ppd {}", list.join(","));
     }
