@@ -25,7 +25,7 @@ pub fn scene_table(r: &SceneResult) -> String {
     for m in &r.methods {
         let _ = writeln!(
             s,
-            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {} | {:.3} | {} |",
+            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {:.4} | {:.3} | {} |",
             m.method,
             m.ms,
             m.time_ratio,
@@ -33,7 +33,7 @@ pub fn scene_table(r: &SceneResult) -> String {
             m.spp.map_or("–".into(), |v| v.to_string()),
             m.flip.mean,
             m.flip.p99,
-            format!("{:.4}", m.converged_flip),
+            m.converged_flip,
             m.glimpse_distance,
             m.overhead_share
                 .map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
@@ -555,7 +555,10 @@ pub fn write(
     let p = cfg.out_dir.join("results.json");
     std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
         .with_context(|| format!("cannot write {}", p.display()))?;
-    plot(cfg, &study.scenes)?;
+    // A corpus-only run has no t0 sweep to draw.
+    if !study.scenes.is_empty() {
+        plot(cfg, &study.scenes)?;
+    }
     println!("{md}");
     Ok(())
 }
