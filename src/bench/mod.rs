@@ -9,18 +9,29 @@
 //!   similar");
 //! * **uniform**: every pixel traced with as many samples as fit in the progressive run's
 //!   wall time (equal time);
-//! * a sweep of `t0` drawing the speed/accuracy curve;
 //! * the progressive run's time split ([`TimeSplit`]): its traced pixels traced again
-//!   alone, against the reference, and the rest (the loop's own price).
+//!   alone, against the reference, and the rest (the loop's own price);
+//! * the judge that knows the truth ([`judge`], issue 13): every scene at several declared
+//!   viewing conditions (pixels per degree), Q = FLIP(progressive, truth) / FLIP(reference,
+//!   truth) against a cached converged render ([`truth`]), the time ratio, whether objects
+//!   keep their colour ([`objects`]) and a contact sheet ([`sheet`]);
+//! * a sweep of `t0` at 28 and 60 ppd drawing the speed/accuracy curve (Q against time);
+//! * with `--corpus N --seed S`, the same judge on N generated scenes ([`corpus`]).
 //!
 //! Each image is judged by LDR-FLIP against an *independent* reference (the same scene
 //! traced with another seed), beside the reference's own noise floor (reference against
-//! independent reference) and Glimpse's own metric. Ratios, not absolute times, are the
-//! result: the machines are noisy, a ratio measured in one run is not.
+//! independent reference) and Glimpse's own metric, and against the truth. Ratios, not
+//! absolute times, are the result: the machines are noisy, a ratio measured in one run is
+//! not.
 
+pub mod corpus;
 pub mod flip;
+pub mod judge;
+pub mod objects;
 pub mod peer;
 pub mod report;
+pub mod sheet;
+pub mod truth;
 
 use crate::cancel::CancelToken;
 use crate::metric::{self, MetricParams};
@@ -32,6 +43,7 @@ use crate::tracer::{self, PathTracer};
 use crate::vision::VisionModel;
 use anyhow::Context;
 use flip::{flip, FlipScore};
+use judge::{Case, Condition, SweepPoint};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -48,7 +60,56 @@ pub struct BenchConfig {
     /// with the samples, the tracing does: this shows how the time ratios move when a pixel
     /// costs more, as it does in the scenes F&P04 timed (§5: references of 4 to 50 minutes).
     pub spp_factor: u32,
+    /// The declared viewing conditions (pixels per degree) every bundled scene is judged at.
+    pub conditions: Vec<f32>,
+    /// Where converged renders are cached (default: `out_dir/cache`).
+    pub cache_dir: PathBuf,
+    /// Study the scenes of `scenes_dir` (false: the corpus alone).
+    pub bundled: bool,
+    pub corpus: Option<CorpusConfig>,
 }
+
+/// `--corpus N --seed S`.
+#[derive(Clone, Debug)]
+pub struct CorpusConfig {
+    pub scenes: usize,
+    pub seed: u64,
+    /// Judge each corpus scene also at [`BenchConfig::conditions`], not only at its own
+    /// declared pixels per degree.
+    pub at_conditions: bool,
+}
+
+impl BenchConfig {
+    /// The study's defaults for `scenes_dir` and `out_dir`: the four conditions of issue
+    /// 13 (two in quick mode), bundled scenes, no corpus, the cache under `out_dir`.
+    #[must_use]
+    pub fn new(scenes_dir: PathBuf, out_dir: PathBuf, quick: bool) -> Self {
+        Self {
+            cache_dir: out_dir.join("cache"),
+            scenes_dir,
+            out_dir,
+            quick,
+            spp_factor: 1,
+            conditions: if quick {
+                QUICK_CONDITIONS.to_vec()
+            } else {
+                STANDARD_CONDITIONS.to_vec()
+            },
+            bundled: true,
+            corpus: None,
+        }
+    }
+}
+
+/// The declared viewing conditions of issue 13, pixels per degree: 28 is a 2004 display
+/// seen from 50 cm (the scene format's default); 45, 60 and 90 modern desktop and laptop
+/// displays at their usual distances.
+pub const STANDARD_CONDITIONS: [f32; 4] = [28.0, 45.0, 60.0, 90.0];
+/// `--quick`'s conditions: the old default and a modern display.
+pub const QUICK_CONDITIONS: [f32; 2] = [28.0, 60.0];
+/// The t0 sweep runs at these conditions (issue 13), or at the first of
+/// [`QUICK_CONDITIONS`] in quick mode.
+pub const SWEEP_CONDITIONS: [f32; 2] = [28.0, 60.0];
 
 /// One method's result on one scene.
 #[derive(Clone, Debug, Serialize)]
@@ -62,24 +123,15 @@ pub struct MethodResult {
     /// Samples per pixel of the uniform render (equal time).
     pub spp: Option<u32>,
     pub flip: FlipScore,
-    /// Mean FLIP against a converged render ([`CONVERGED_SPP_FACTOR`] × the scene's samples,
+    /// Mean FLIP against the truth ([`truth::TRUTH_SPP_FACTOR`] × the scene's samples,
     /// another seed): the error against the picture a user actually wants. Blotches that an
     /// interpolation of noisy samples leaves are judged here against truth, not against
-    /// another noisy image. `None` in quick mode.
-    pub converged_flip: Option<f64>,
+    /// another noisy image.
+    pub converged_flip: f64,
     /// Glimpse's metric (adaptive block map mean, JNDs) against the independent reference.
     pub glimpse_distance: f64,
     /// Share of the render spent in the metric and the triangulation.
     pub overhead_share: Option<f64>,
-}
-
-/// One point of the t0 sweep.
-#[derive(Clone, Debug, Serialize)]
-pub struct SweepPoint {
-    pub t0: f32,
-    pub time_ratio: f64,
-    pub pixel_fraction: f64,
-    pub flip: f64,
 }
 
 /// A target of the issue, checked on measured numbers.
@@ -133,51 +185,172 @@ pub struct SceneResult {
     /// FLIP between the reference and the independent reference (same spp, other seed).
     pub noise_floor: FlipScore,
     pub methods: Vec<MethodResult>,
+    /// The t0 sweep at [`SWEEP_CONDITIONS`].
     pub sweep: Vec<SweepPoint>,
+    /// The judge against the truth at each of [`BenchConfig::conditions`].
+    pub conditions: Vec<Condition>,
     /// (normal exposure, exposure × 16) pixel fractions, for dark scenes.
     pub exposure_check: Option<(f64, f64)>,
     pub time_split: TimeSplit,
     pub targets: Vec<TargetCheck>,
 }
 
+/// A generated scene judged against its truth.
+#[derive(Clone, Debug, Serialize)]
+pub struct CorpusResult {
+    pub scene: String,
+    /// The document, relative to the output folder.
+    pub file: String,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub exposure: f32,
+    /// The scene's own `display.pixels_per_degree`.
+    pub declared_ppd: f32,
+    /// At the declared ppd first, then at [`BenchConfig::conditions`] if asked.
+    pub conditions: Vec<Condition>,
+}
+
+/// Everything one run measured.
+pub struct Study {
+    pub scenes: Vec<SceneResult>,
+    pub corpus: Vec<CorpusResult>,
+}
+
 /// Runs the study and writes `report.md`, `results.json` and the plots into `out_dir`.
-pub fn run(cfg: &BenchConfig) -> anyhow::Result<Vec<SceneResult>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&cfg.scenes_dir)
-        .with_context(|| format!("cannot read scene folder {}", cfg.scenes_dir.display()))?
+pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
+    std::fs::create_dir_all(&cfg.out_dir)
+        .with_context(|| format!("cannot create {}", cfg.out_dir.display()))?;
+    let mut study = Study {
+        scenes: Vec::new(),
+        corpus: Vec::new(),
+    };
+    let mut files = Vec::new();
+    if cfg.bundled {
+        files = scene_files(&cfg.scenes_dir)?;
+        for path in &files {
+            let loaded = load(path, cfg)?;
+            let scene = &loaded.scene;
+            eprintln!(
+                "bench: {} ({}x{}, {} spp)",
+                scene.name, scene.width, scene.height, scene.render.samples_per_pixel
+            );
+            let r = bench_scene(&loaded, cfg)?;
+            eprintln!("{}", report::scene_table(&r));
+            study.scenes.push(r);
+        }
+    }
+    if let Some(c) = &cfg.corpus {
+        study.corpus = run_corpus(cfg, c)?;
+    }
+    let peer = if cfg.bundled {
+        peer::run_mitsuba(cfg, &files)
+    } else {
+        Err("the bundled scenes were not studied (--corpus-only)".into())
+    };
+    report::write(cfg, &study, &peer)?;
+    Ok(study)
+}
+
+/// The `*.json` files of the scene folder, sorted.
+fn scene_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read scene folder {}", dir.display()))?
         .filter_map(Result::ok)
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "json"))
         .collect();
     files.sort();
-    anyhow::ensure!(
-        !files.is_empty(),
-        "no *.json scenes in {}",
-        cfg.scenes_dir.display()
-    );
-    std::fs::create_dir_all(&cfg.out_dir)
-        .with_context(|| format!("cannot create {}", cfg.out_dir.display()))?;
+    anyhow::ensure!(!files.is_empty(), "no *.json scenes in {}", dir.display());
+    Ok(files)
+}
 
+/// Generates the corpus into `out_dir/corpus/` and judges every scene against its truth.
+fn run_corpus(cfg: &BenchConfig, c: &CorpusConfig) -> anyhow::Result<Vec<CorpusResult>> {
+    let dir = cfg.out_dir.join("corpus");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut results = Vec::new();
-    for path in &files {
-        let scene = load(path, cfg)?;
+    for (k, generated) in corpus::generate(c.scenes, c.seed).into_iter().enumerate() {
+        let file = format!("corpus/{}.json", generated.name);
+        let path = cfg.out_dir.join(&file);
+        std::fs::write(&path, &generated.document)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        let loaded = load(&path, cfg)?;
+        let s = &loaded.scene;
         eprintln!(
-            "bench: {} ({}x{}, {} spp)",
-            scene.name, scene.width, scene.height, scene.render.samples_per_pixel
+            "bench: corpus {}/{} {} ({}x{}, {} spp, {} ppd, exposure {})",
+            k + 1,
+            c.scenes,
+            s.name,
+            s.width,
+            s.height,
+            s.render.samples_per_pixel,
+            s.display.pixels_per_degree,
+            s.display.exposure
         );
-        let r = bench_scene(&scene, cfg)?;
-        eprintln!("{}", report::scene_table(&r));
+        let r = judge_corpus_scene(cfg, c, &loaded, file)?;
+        eprintln!("{}", report::corpus_line(&r));
         results.push(r);
     }
-    let peer = peer::run_mitsuba(cfg, &files);
-    report::write(cfg, &results, &peer)?;
     Ok(results)
+}
+
+/// One corpus scene against its truth, at its declared ppd (and the standard conditions
+/// if asked).
+fn judge_corpus_scene(
+    cfg: &BenchConfig,
+    c: &CorpusConfig,
+    loaded: &Loaded,
+    file: String,
+) -> anyhow::Result<CorpusResult> {
+    let s = &loaded.scene;
+    let cancel = CancelToken::new();
+    let tracer = PathTracer::new(s);
+    let truth = truth::converged(s, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
+    let judge = independent_reference(&tracer, s, &cancel)?;
+    let ids = tracer::object_id_map(&tracer);
+    let case = Case {
+        scene: s,
+        tracer: &tracer,
+        truth: &truth.image,
+        judge: &judge,
+        ids: &ids,
+        runs: timing_runs(cfg),
+        cancel: &cancel,
+    };
+    let declared = s.display.pixels_per_degree;
+    let mut ppds = vec![declared];
+    if c.at_conditions {
+        ppds.extend(cfg.conditions.iter().filter(|&&p| p != declared));
+    }
+    let conditions = ppds
+        .into_iter()
+        .map(|ppd| judge::at_condition(&case, ppd, &cfg.out_dir))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(CorpusResult {
+        scene: s.name.clone(),
+        file,
+        width: s.width,
+        height: s.height,
+        spp: s.render.samples_per_pixel,
+        exposure: s.display.exposure,
+        declared_ppd: declared,
+        conditions,
+    })
+}
+
+/// A scene as the bench runs it, and the document it came from (the truth's cache key).
+#[derive(Debug)]
+pub struct Loaded {
+    pub scene: Scene,
+    pub document: String,
 }
 
 /// Loads a scene; in quick mode shrinks it to at most 128 pixels on its long side. The
 /// samples per pixel stay the scene's (times [`BenchConfig::spp_factor`]): fewer would make
 /// the reference itself noisy, and a noisy reference is a different study (every method is
 /// then judged mostly on noise).
-fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Scene> {
+fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
     let json =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -221,21 +394,43 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Scene> {
             scene.height = ((scene.height as f32 * s).round() as u32).max(1);
         }
     }
-    Ok(scene)
+    Ok(Loaded {
+        scene,
+        document: json,
+    })
 }
 
 /// The seed of the independent reference: any other seed will do; this one is fixed so
 /// the study is repeatable.
 const JUDGE_SEED_OFFSET: u64 = 0x9E37_79B9_7F4A_7C15;
 
-/// The converged render has this many times the scene's samples per pixel: its own noise
-/// is then √8 ≈ 2.8× lower than the reference's, low enough to rank the methods' errors
-/// against truth, for 8 reference times per scene (a 1024-spp render would cost 32–43).
-pub const CONVERGED_SPP_FACTOR: u32 = 8;
-/// Seed of the converged render (independent of the reference, the judge and the twins).
-const CONVERGED_SEED_OFFSET: u64 = 0x2545_F491_4F6C_DD1D;
+/// The independent reference: the scene's samples, another seed.
+fn independent_reference(
+    tracer: &PathTracer,
+    scene: &Scene,
+    cancel: &CancelToken,
+) -> anyhow::Result<LinearImage> {
+    Ok(tracer::render_reference_with(
+        tracer,
+        Some((
+            scene.render.samples_per_pixel,
+            scene.render.seed ^ JUDGE_SEED_OFFSET,
+        )),
+        cancel,
+        &|_, _| {},
+    )?)
+}
 
-fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> {
+fn timing_runs(cfg: &BenchConfig) -> usize {
+    if cfg.quick {
+        1
+    } else {
+        TIMING_RUNS
+    }
+}
+
+fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult> {
+    let scene = &loaded.scene;
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(scene);
     let (w, h) = (scene.width, scene.height);
@@ -263,7 +458,7 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     // The time ratio is the target: reference and progressive run alternately, and each
     // time is the median of its runs (renders are deterministic, so every run gives the
     // same image). One run of each on this noisy machine could swing the ratio by ±0.05.
-    let runs = if cfg.quick { 1 } else { TIMING_RUNS };
+    let runs = timing_runs(cfg);
     let (mut ref_times, mut prog_times) = (Vec::new(), Vec::new());
     let mut timed = None;
     for _ in 0..runs {
@@ -277,28 +472,10 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
     let (reference, prog) = timed.context("at least one timing run")?;
     let (reference_ms, prog_ms) = (median(&mut ref_times), median(&mut prog_times));
     let time_split = time_split(&tracer, &prog, prog_ms, reference_ms, runs, &cancel)?;
-    let judge = tracer::render_reference_with(
-        &tracer,
-        Some((spp, scene.render.seed ^ JUDGE_SEED_OFFSET)),
-        &cancel,
-        &|_, _| {},
-    )?;
+    let judge = independent_reference(&tracer, scene, &cancel)?;
     let noise_floor = flip(&judge, &reference, exposure, ppd);
-    let converged = if cfg.quick {
-        None
-    } else {
-        Some(tracer::render_reference_with(
-            &tracer,
-            Some((
-                spp.saturating_mul(CONVERGED_SPP_FACTOR),
-                scene.render.seed ^ CONVERGED_SEED_OFFSET,
-            )),
-            &cancel,
-            &|_, _| {},
-        )?)
-    };
-    let vs_converged =
-        |img: &LinearImage| converged.as_ref().map(|c| flip(c, img, exposure, ppd).mean);
+    let truth = truth::converged(scene, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
+    let vs_converged = |img: &LinearImage| flip(&truth.image, img, exposure, ppd).mean;
 
     let model = VisionModel::new(display_model(scene), w, h);
     let judge_stack = model.decompose(&judge)?;
@@ -387,23 +564,17 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         overhead_share: None,
     });
 
-    let t0s: &[f32] = if cfg.quick {
-        &[0.5, 1.0, 2.0]
-    } else {
-        &[0.25, 0.5, 1.0, 2.0, 4.0]
+    let ids = tracer::object_id_map(&tracer);
+    let case = Case {
+        scene,
+        tracer: &tracer,
+        truth: &truth.image,
+        judge: &judge,
+        ids: &ids,
+        runs,
+        cancel: &cancel,
     };
-    let mut sweep = Vec::new();
-    for &t0 in t0s {
-        let mut s = scene.clone();
-        s.progressive.t0 = t0;
-        let (f, f_ms) = run_mode(&s, RenderMode::Progressive, None)?;
-        sweep.push(SweepPoint {
-            t0,
-            time_ratio: f_ms / reference_ms,
-            pixel_fraction: f.stats.pixel_fraction,
-            flip: flip(&judge, &f.image, exposure, ppd).mean,
-        });
-    }
+    let (sweep, conditions) = against_truth(&case, &reference, reference_ms, cfg)?;
 
     // "Dark scenes cost less": the same scene shown 16× brighter must trace more pixels.
     let exposure_check = if scene.name.contains("cellar") {
@@ -435,10 +606,36 @@ fn bench_scene(scene: &Scene, cfg: &BenchConfig) -> anyhow::Result<SceneResult> 
         noise_floor,
         methods,
         sweep,
+        conditions,
         exposure_check,
         time_split,
         targets,
     })
+}
+
+/// A bundled scene against its truth: the t0 sweep at [`SWEEP_CONDITIONS`] (three t0 at
+/// the first quick condition in quick mode), then every condition of the run.
+fn against_truth(
+    case: &Case,
+    reference: &LinearImage,
+    reference_ms: f64,
+    cfg: &BenchConfig,
+) -> anyhow::Result<(Vec<SweepPoint>, Vec<Condition>)> {
+    let (t0s, sweep_ppds): (&[f32], &[f32]) = if cfg.quick {
+        (&[0.5, 1.0, 2.0], &QUICK_CONDITIONS[..1])
+    } else {
+        (&[0.25, 0.5, 1.0, 2.0, 4.0], &SWEEP_CONDITIONS)
+    };
+    let mut sweep = Vec::new();
+    for &p in sweep_ppds {
+        sweep.extend(judge::sweep(case, reference, reference_ms, p, t0s)?);
+    }
+    let conditions = cfg
+        .conditions
+        .iter()
+        .map(|&p| judge::at_condition(case, p, &cfg.out_dir))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok((sweep, conditions))
 }
 
 /// [`TimeSplit`]: the progressive run's traced pixels traced again, alone (median of
@@ -555,7 +752,9 @@ fn write_images(
     imgs: &[(&str, &LinearImage)],
 ) -> anyhow::Result<()> {
     for (name, img) in imgs {
-        let p = cfg.out_dir.join(format!("{}-{name}.png", scene.name));
+        let p = cfg
+            .out_dir
+            .join(format!("{}-{name}.png", judge::file_stem(&scene.name)));
         std::fs::write(
             &p,
             crate::raster::encode_png_display(img, scene.display.exposure)?,
@@ -565,7 +764,7 @@ fn write_images(
     Ok(())
 }
 
-fn ms(t: Instant) -> f64 {
+pub(crate) fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
@@ -573,7 +772,7 @@ fn ms(t: Instant) -> f64 {
 const TIMING_RUNS: usize = 3;
 
 /// The median of a non-empty list (the upper middle of an even one).
-fn median(v: &mut [f64]) -> f64 {
+pub(crate) fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
@@ -601,17 +800,12 @@ mod tests {
         )
         .unwrap();
         let cfg = |spp_factor| BenchConfig {
-            scenes_dir: dir.path().to_path_buf(),
-            out_dir: dir.path().to_path_buf(),
-            quick: false,
             spp_factor,
+            ..BenchConfig::new(dir.path().to_path_buf(), dir.path().to_path_buf(), false)
         };
-        assert_eq!(load(&path, &cfg(1)).unwrap().render.samples_per_pixel, 2);
-        assert_eq!(
-            load(&path, &cfg(8192)).unwrap().render.samples_per_pixel,
-            16384,
-            "exactly at the budget"
-        );
+        let spp = |f| load(&path, &cfg(f)).unwrap().scene.render.samples_per_pixel;
+        assert_eq!(spp(1), 2);
+        assert_eq!(spp(8192), 16384, "exactly at the budget");
         // Within 2^20 samples per pixel, over the 2^40 budget.
         let e = load(&path, &cfg(8193)).unwrap_err().to_string();
         assert!(

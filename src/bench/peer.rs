@@ -48,7 +48,7 @@ pub fn run_mitsuba(cfg: &BenchConfig, scene_files: &[PathBuf]) -> Result<PeerRes
             "Mitsuba 3 is not installed here (`pip install mitsuba`): peer column skipped".into(),
         );
     }
-    let mut scene = super::load(path, cfg).map_err(|e| e.to_string())?;
+    let mut scene = super::load(path, cfg).map_err(|e| e.to_string())?.scene;
     // Mitsuba's built-in Cornell box is square; compare at one square size.
     let size = if cfg.quick { 128 } else { 512 };
     scene.width = size;

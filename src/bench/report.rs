@@ -1,8 +1,12 @@
-//! The study's outputs: `report.md` (the tables the README quotes), `results.json`
-//! (raw numbers) and `tradeoff.svg` (time against FLIP over the t0 sweep, per scene).
+//! The study's outputs: `report.md` (a summary against issue 13's targets, then the
+//! tables the README quotes), `results.json` (raw numbers) and `tradeoff.svg` (Q against
+//! time over the t0 sweep, per scene and condition).
 
+use super::judge::{Condition, SweepPoint, Q_TARGET, TIME_TARGET};
+use super::objects::{MIN_COVERAGE, MIN_TOLERANCE, REFERENCE_FACTOR};
 use super::peer::PeerResult;
-use super::{BenchConfig, SceneResult};
+use super::truth::TRUTH_SPP_FACTOR;
+use super::{median, BenchConfig, CorpusResult, SceneResult, Study, TargetCheck};
 use anyhow::Context;
 use plotters::prelude::*;
 use std::fmt::Write as _;
@@ -21,7 +25,7 @@ pub fn scene_table(r: &SceneResult) -> String {
     for m in &r.methods {
         let _ = writeln!(
             s,
-            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {} | {:.3} | {} |",
+            "| {} | {:.0} ms | {:.2} | {:.1}% | {} | {:.4} | {:.3} | {:.4} | {:.3} | {} |",
             m.method,
             m.ms,
             m.time_ratio,
@@ -29,21 +33,25 @@ pub fn scene_table(r: &SceneResult) -> String {
             m.spp.map_or("–".into(), |v| v.to_string()),
             m.flip.mean,
             m.flip.p99,
-            m.converged_flip.map_or("–".into(), |v| format!("{v:.4}")),
+            m.converged_flip,
             m.glimpse_distance,
             m.overhead_share
                 .map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
         );
     }
+    s.push('\n');
+    s.push_str(&conditions_table(&r.conditions));
     s.push_str("\nt0 sweep: ");
     for p in &r.sweep {
         let _ = write!(
             s,
-            "t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}; ",
+            "{} ppd t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}, Q {:.2}; ",
+            p.ppd,
             p.t0,
             p.time_ratio,
             p.pixel_fraction * 100.0,
-            p.flip
+            p.flip,
+            p.q
         );
     }
     let ts = &r.time_split;
@@ -87,6 +95,338 @@ pub fn scene_table(r: &SceneResult) -> String {
     s
 }
 
+/// One row per condition: Q, time, the floor comparison, objects, the contact sheet.
+#[must_use]
+pub fn conditions_table(conditions: &[Condition]) -> String {
+    let mut s = String::from(
+        "| ppd | Q (FLIP vs truth: progressive / reference) | × reference time | pixels traced \
+         | Q ≤ 1 at ≤ 0.5× | vs noise floor | worst object (error / allowed) | contact sheet |\n\
+         |---:|---:|---:|---:|---|---:|---:|---|\n",
+    );
+    for c in conditions {
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} ({:.4} / {:.4}) | {:.2} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
+            c.ppd,
+            c.q,
+            c.progressive_flip,
+            c.reference_flip,
+            c.time_ratio,
+            c.pixel_fraction * 100.0,
+            yes_no(c.passes()),
+            c.floor_ratio,
+            object_cell(c),
+            c.sheet
+        );
+    }
+    s
+}
+
+fn yes_no(b: bool) -> &'static str {
+    if b {
+        "yes"
+    } else {
+        "**no**"
+    }
+}
+
+/// "0.42 (3 objects) yes", or "– (no object ≥ 0.5 %)".
+fn object_cell(c: &Condition) -> String {
+    if c.objects.is_empty() {
+        return "– (no object ≥ 0.5 %)".into();
+    }
+    let worst = c
+        .objects
+        .iter()
+        .max_by(|a, b| a.ratio().total_cmp(&b.ratio()))
+        .expect("not empty");
+    format!(
+        "{:.2} (objects[{}]: {:.1}% / {:.1}%; {} judged) {}",
+        c.worst_object_ratio,
+        worst.object,
+        worst.progressive_error * 100.0,
+        worst.allowed * 100.0,
+        c.objects.len(),
+        yes_no(c.objects_pass())
+    )
+}
+
+/// One corpus scene, one line per condition (the progress log).
+#[must_use]
+pub fn corpus_line(r: &CorpusResult) -> String {
+    r.conditions
+        .iter()
+        .map(|c| {
+            format!(
+                "  {} at {} ppd: Q {:.2}, {:.2}× time, {:.1}% px, objects {:.2} {}",
+                r.scene,
+                c.ppd,
+                c.q,
+                c.time_ratio,
+                c.pixel_fraction * 100.0,
+                c.worst_object_ratio,
+                if c.passes() { "pass" } else { "FAIL" }
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The corpus, one row per scene and condition.
+fn corpus_table(corpus: &[CorpusResult]) -> String {
+    let mut s = String::from(
+        "| scene | size, spp | exposure | ppd | Q | × reference time | pixels traced | Q ≤ 1 at ≤ 0.5× \
+         | vs noise floor | worst object | contact sheet |\n\
+         |---|---|---:|---:|---:|---:|---:|---|---:|---:|---|\n",
+    );
+    for r in corpus {
+        for c in &r.conditions {
+            let declared = if c.ppd == r.declared_ppd {
+                " (declared)"
+            } else {
+                ""
+            };
+            let _ = writeln!(
+                s,
+                "| [{}]({}) | {}x{}, {} | {} | {}{declared} | {:.2} | {:.2} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
+                r.scene,
+                r.file,
+                r.width,
+                r.height,
+                r.spp,
+                r.exposure,
+                c.ppd,
+                c.q,
+                c.time_ratio,
+                c.pixel_fraction * 100.0,
+                yes_no(c.passes()),
+                c.floor_ratio,
+                object_cell(c),
+                c.sheet
+            );
+        }
+    }
+    s
+}
+
+/// A t0 sweep is "monotone" when, as t0 grows, the time never rises by more than
+/// [`SWEEP_TIME_SLACK`] (one run per point: timing noise) and Q never falls by more than
+/// [`SWEEP_Q_SLACK`].
+pub const SWEEP_TIME_SLACK: f64 = 0.02;
+pub const SWEEP_Q_SLACK: f64 = 0.01;
+/// The sweep's ends (issue 13): a cheap preview at ≤ 0.3× the time, and Q ≤ 0.9.
+const SWEEP_PREVIEW_TIME: f64 = 0.3;
+const SWEEP_BEST_Q: f64 = 0.9;
+
+/// One scene's sweep at one condition, checked.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SweepCheck {
+    pub scene: String,
+    pub ppd: f32,
+    pub monotone: bool,
+    pub cheapest_time: f64,
+    pub best_q: f64,
+}
+
+impl SweepCheck {
+    #[must_use]
+    pub fn met(&self) -> bool {
+        self.monotone && self.cheapest_time <= SWEEP_PREVIEW_TIME && self.best_q <= SWEEP_BEST_Q
+    }
+}
+
+/// The sweep of `points` (one scene, one ppd) checked; points in any order.
+#[must_use]
+pub fn sweep_check(scene: &str, ppd: f32, points: &[&SweepPoint]) -> SweepCheck {
+    let mut p = points.to_vec();
+    p.sort_by(|a, b| a.t0.total_cmp(&b.t0));
+    let monotone = p.windows(2).all(|w| {
+        w[1].time_ratio <= w[0].time_ratio + SWEEP_TIME_SLACK && w[1].q >= w[0].q - SWEEP_Q_SLACK
+    });
+    SweepCheck {
+        scene: scene.into(),
+        ppd,
+        monotone,
+        cheapest_time: p.iter().map(|s| s.time_ratio).fold(f64::INFINITY, f64::min),
+        best_q: p.iter().map(|s| s.q).fold(f64::INFINITY, f64::min),
+    }
+}
+
+/// Every bundled scene's sweep, per condition.
+fn sweep_checks(scenes: &[SceneResult]) -> Vec<SweepCheck> {
+    let mut out = Vec::new();
+    for r in scenes {
+        let mut ppds: Vec<f32> = r.sweep.iter().map(|p| p.ppd).collect();
+        ppds.dedup();
+        for ppd in ppds {
+            let pts: Vec<&SweepPoint> = r.sweep.iter().filter(|p| p.ppd == ppd).collect();
+            out.push(sweep_check(&r.scene, ppd, &pts));
+        }
+    }
+    out
+}
+
+/// How many of `conds` pass `pass`.
+fn share(conds: &[&Condition], pass: impl Fn(&Condition) -> bool) -> (usize, usize) {
+    (conds.iter().filter(|c| pass(c)).count(), conds.len())
+}
+
+/// "n of m", with the misses named when there are any.
+fn count_with_misses(n: usize, of: usize, misses: &[String]) -> String {
+    if misses.is_empty() {
+        format!("{n} of {of}")
+    } else {
+        format!("{n} of {of}; missed: {}", misses.join(", "))
+    }
+}
+
+/// "n of m (p %)", or "none judged" for an empty set (never NaN %).
+fn count_with_share(n: usize, of: usize) -> String {
+    if of == 0 {
+        "none judged".into()
+    } else {
+        format!("{n} of {of} ({:.0} %)", 100.0 * n as f64 / of as f64)
+    }
+}
+
+fn q_time_target(what: &str) -> String {
+    format!("{what}: Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time")
+}
+
+/// Issue 13's targets, checked on this run's numbers.
+#[must_use]
+pub fn summary(study: &Study) -> Vec<TargetCheck> {
+    let mut t = bundled_targets(&study.scenes);
+    if !study.corpus.is_empty() {
+        t.extend(corpus_targets(&study.corpus));
+    }
+    t.extend(sweep_target(&study.scenes));
+    t
+}
+
+/// Every bundled scene passes at each condition; objects keep their colour.
+fn bundled_targets(scenes: &[SceneResult]) -> Vec<TargetCheck> {
+    let all: Vec<(&SceneResult, &Condition)> = scenes
+        .iter()
+        .flat_map(|r| r.conditions.iter().map(move |c| (r, c)))
+        .collect();
+    let mut ppds: Vec<f32> = all.iter().map(|(_, c)| c.ppd).collect();
+    ppds.sort_by(f32::total_cmp);
+    ppds.dedup();
+    let mut t: Vec<TargetCheck> = ppds
+        .iter()
+        .map(|&ppd| {
+            let at: Vec<_> = all.iter().filter(|(_, c)| c.ppd == ppd).collect();
+            let misses: Vec<String> = at
+                .iter()
+                .filter(|(_, c)| !c.passes())
+                .map(|(r, c)| format!("{} Q {:.2} at {:.2}×", r.scene, c.q, c.time_ratio))
+                .collect();
+            TargetCheck {
+                target: q_time_target(&format!("bundled scenes at {ppd} ppd")),
+                met: misses.is_empty(),
+                detail: count_with_misses(at.len() - misses.len(), at.len(), &misses),
+            }
+        })
+        .collect();
+    if !all.is_empty() {
+        let misses: Vec<String> = all
+            .iter()
+            .filter(|(_, c)| !c.objects_pass())
+            .map(|(r, c)| format!("{} at {} ppd ({:.2})", r.scene, c.ppd, c.worst_object_ratio))
+            .collect();
+        t.push(TargetCheck {
+            target: "bundled scenes: objects keep their colour (every scene and condition)".into(),
+            met: misses.is_empty(),
+            detail: count_with_misses(all.len() - misses.len(), all.len(), &misses),
+        });
+    }
+    t
+}
+
+/// ≥ 90 % of the corpus passes at its declared ppd (and at each standard condition it
+/// was judged at); the median time; objects keep their colour.
+fn corpus_targets(corpus: &[CorpusResult]) -> Vec<TargetCheck> {
+    let declared: Vec<&Condition> = corpus.iter().map(|r| &r.conditions[0]).collect();
+    let mut at_ppd = vec![("each scene's declared ppd".to_string(), declared.clone())];
+    let mut ppds: Vec<f32> = corpus
+        .iter()
+        .flat_map(|r| r.conditions.iter().skip(1).map(|c| c.ppd))
+        .collect();
+    ppds.sort_by(f32::total_cmp);
+    ppds.dedup();
+    for ppd in ppds {
+        // A scene declared at this ppd is judged there once (its declared condition).
+        let at = corpus
+            .iter()
+            .filter_map(|r| r.conditions.iter().find(|c| c.ppd == ppd))
+            .collect();
+        at_ppd.push((format!("{ppd} ppd"), at));
+    }
+    let mut t: Vec<TargetCheck> = at_ppd
+        .into_iter()
+        .map(|(label, at)| {
+            let (n, of) = share(&at, Condition::passes);
+            TargetCheck {
+                target: q_time_target(&format!("corpus at {label}, ≥ 90 % of scenes")),
+                met: of > 0 && n as f64 >= 0.9 * of as f64,
+                detail: count_with_share(n, of),
+            }
+        })
+        .collect();
+    let mut times: Vec<f64> = declared.iter().map(|c| c.time_ratio).collect();
+    let med = median(&mut times);
+    t.push(TargetCheck {
+        target: "median corpus time (declared ppd) ≤ 0.35× the reference".into(),
+        met: med <= 0.35,
+        detail: format!("{med:.2}×"),
+    });
+    let all: Vec<&Condition> = corpus.iter().flat_map(|r| &r.conditions).collect();
+    let (n, of) = share(&all, Condition::objects_pass);
+    t.push(TargetCheck {
+        target: "corpus: objects keep their colour (every scene and condition)".into(),
+        met: n == of,
+        detail: count_with_share(n, of),
+    });
+    t
+}
+
+/// Every bundled scene's t0 sweep is monotone and spans a cheap preview to Q ≤ 0.9.
+fn sweep_target(scenes: &[SceneResult]) -> Option<TargetCheck> {
+    let sweeps = sweep_checks(scenes);
+    if sweeps.is_empty() {
+        return None;
+    }
+    let misses: Vec<String> = sweeps
+        .iter()
+        .filter(|s| !s.met())
+        .map(|s| {
+            format!(
+                "{} {} ppd ({}, cheapest {:.2}×, best Q {:.2})",
+                s.scene,
+                s.ppd,
+                if s.monotone {
+                    "monotone"
+                } else {
+                    "not monotone"
+                },
+                s.cheapest_time,
+                s.best_q
+            )
+        })
+        .collect();
+    Some(TargetCheck {
+        target: format!(
+            "t0 sweep monotone, from ≤ {SWEEP_PREVIEW_TIME}× time to Q ≤ {SWEEP_BEST_Q}"
+        ),
+        met: misses.is_empty(),
+        detail: format!(
+            "{} scene/ppd sweeps",
+            count_with_misses(sweeps.len() - misses.len(), sweeps.len(), &misses)
+        ),
+    })
+}
+
 /// The command line's flags that shaped this run, as typed.
 fn flags(cfg: &BenchConfig) -> String {
     let mut f = String::new();
@@ -96,30 +436,97 @@ fn flags(cfg: &BenchConfig) -> String {
     if cfg.spp_factor != 1 {
         let _ = write!(f, " --spp-factor {}", cfg.spp_factor);
     }
+    let defaults: &[f32] = if cfg.quick {
+        &super::QUICK_CONDITIONS
+    } else {
+        &super::STANDARD_CONDITIONS
+    };
+    if cfg.conditions != defaults {
+        let list: Vec<String> = cfg.conditions.iter().map(f32::to_string).collect();
+        let _ = write!(f, " --ppd {}", list.join(","));
+    }
+    if let Some(c) = &cfg.corpus {
+        let _ = write!(f, " --corpus {} --seed {}", c.scenes, c.seed);
+        if c.at_conditions {
+            f.push_str(" --corpus-at-conditions");
+        }
+    }
+    if !cfg.bundled {
+        f.push_str(" --corpus-only");
+    }
     f
 }
 
 /// Writes report.md, results.json and tradeoff.svg into the output folder.
 pub fn write(
     cfg: &BenchConfig,
-    results: &[SceneResult],
+    study: &Study,
     peer: &Result<PeerResult, String>,
 ) -> anyhow::Result<()> {
+    let targets = summary(study);
     let mut md = String::from("# Glimpse speed-versus-accuracy study\n\n");
     let _ = writeln!(
         md,
-        "Generated by `glimpse bench{}`. All images of a scene are judged by LDR-FLIP (nv-flip, \
-         at the scene's pixels per degree, display-referred) against an independent reference \
-         (same scene and spp, another seed); the reference row's FLIP is that noise floor. \
-         Guo stops at the progressive run's ray count (noise twins included); uniform gets \
-         the progressive run's wall time. \"FLIP vs converged\" judges the same images \
-         against a render with 8× the samples (another seed): error against the picture \
-         wanted rather than against another noisy one. The reference and progressive times are medians of 3 \
-         alternating runs (one run in `--quick`); every other cell is one render. All in one \
-         run on this machine: the ratios measured side by side are the result, not the \
-         absolute times.\n",
+        "Generated by `glimpse bench{}`.\n\n## Summary against issue 13's targets\n",
         flags(cfg)
     );
+    md.push_str("| target | met | measured |\n|---|---|---|\n");
+    for t in &targets {
+        let _ = writeln!(md, "| {} | {} | {} |", t.target, yes_no(t.met), t.detail);
+    }
+    let _ = writeln!(
+        md,
+        "\n**The judge.** Truth = the scene traced with {TRUTH_SPP_FACTOR}× its samples per \
+         pixel and another seed (cached in `{}`). At each declared viewing condition (the \
+         scene's `display.pixels_per_degree` set to that value for the progressive render and \
+         for FLIP), Q = FLIP(progressive, truth) / FLIP(reference, truth): Q ≤ 1 means the \
+         progressive picture is at least as close to the truth as the reference. Times are \
+         medians of {} alternating reference/progressive runs per condition. \"vs noise floor\" \
+         is the older comparison: FLIP(progressive, independent reference) over FLIP(reference, \
+         independent reference). **Objects keep their colour**: over every object covering ≥ \
+         {:.1} % of the image (object-id map), the progressive image's mean linear radiance must \
+         be within max({:.0} %, {REFERENCE_FACTOR}× the reference's own error) of the truth's, \
+         the error luminance-weighted (Σ w_c |p_c − t_c| / Σ w_c t_c, Rec.709 weights); the \
+         column shows the worst object's error over its allowance (≤ 1 passes). Each contact \
+         sheet shows reference | progressive | truth | FLIP map of progressive vs truth \
+         (magma: black none, yellow most). The t0 sweep is monotone when, as t0 grows, time \
+         never rises by more than {SWEEP_TIME_SLACK}× and Q never falls by more than \
+         {SWEEP_Q_SLACK} (one run per point).\n",
+        cfg.cache_dir.display(),
+        if cfg.quick { 1 } else { super::TIMING_RUNS },
+        MIN_COVERAGE * 100.0,
+        MIN_TOLERANCE * 100.0,
+    );
+    if !study.scenes.is_empty() {
+        md.push_str("## Bundled scenes against the truth\n\n");
+        for r in &study.scenes {
+            let _ = writeln!(md, "### {}\n\n{}", r.scene, conditions_table(&r.conditions));
+        }
+        md.push_str(&sweep_section(study));
+    }
+    if !study.corpus.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Corpus ({} generated scenes; documents in `corpus/`)\n\n{}",
+            study.corpus.len(),
+            corpus_table(&study.corpus)
+        );
+    }
+    if !study.scenes.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Bundled scenes: every method\n\nAll images of a scene are judged by LDR-FLIP \
+             (nv-flip, at the scene's pixels per degree, display-referred) against an \
+             independent reference (same scene and spp, another seed); the reference row's \
+             FLIP is that noise floor. Guo stops at the progressive run's ray count (noise \
+             twins included); uniform gets the progressive run's wall time. \"FLIP vs \
+             converged\" judges the same images against the truth ({TRUTH_SPP_FACTOR}× the \
+             samples, another seed). The reference and progressive times are medians of 3 \
+             alternating runs (one run in `--quick`); every other cell is one render. All in \
+             one run on this machine: the ratios measured side by side are the result, not \
+             the absolute times.\n"
+        );
+    }
     if cfg.spp_factor != 1 {
         let _ = writeln!(
             md,
@@ -128,11 +535,87 @@ pub fn write(
             cfg.spp_factor, cfg.spp_factor
         );
     }
-    for r in results {
+    for r in &study.scenes {
         md.push_str(&scene_table(r));
         md.push('\n');
     }
-    md.push_str("## Peer: Mitsuba 3 at equal time (Cornell box)\n\n");
+    if cfg.bundled {
+        md.push_str(&peer_section(peer));
+    }
+    let p = cfg.out_dir.join("report.md");
+    std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
+    let json = serde_json::json!({
+        "summary": targets,
+        "sweep_checks": sweep_checks(&study.scenes),
+        "scenes": study.scenes,
+        "corpus": study.corpus,
+        "peer": peer.as_ref().ok(),
+        "peer_error": peer.as_ref().err(),
+    });
+    let p = cfg.out_dir.join("results.json");
+    std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", p.display()))?;
+    // A corpus-only run has no t0 sweep to draw.
+    if !study.scenes.is_empty() {
+        plot(cfg, &study.scenes)?;
+    }
+    println!("{md}");
+    Ok(())
+}
+
+/// The t0 sweep as a table: one row per scene and condition, one cell per t0.
+fn sweep_section(study: &Study) -> String {
+    let mut s = String::from(
+        "## The knob: t0 sweep (time × reference, Q)\n\nOne progressive run per point; \
+         `tradeoff.svg` plots Q against time per scene and condition (lower-left is better).\n\n",
+    );
+    let mut t0s: Vec<f32> = study
+        .scenes
+        .iter()
+        .flat_map(|r| r.sweep.iter().map(|p| p.t0))
+        .collect();
+    t0s.sort_by(f32::total_cmp);
+    t0s.dedup();
+    s.push_str("| scene | ppd |");
+    for t0 in &t0s {
+        let _ = write!(s, " t0 = {t0} |");
+    }
+    s.push_str(" monotone, ≤ 0.3× to Q ≤ 0.9 |\n|---|---:|");
+    s.push_str(&"---:|".repeat(t0s.len()));
+    s.push_str("---|\n");
+    let checks = sweep_checks(&study.scenes);
+    for c in &checks {
+        let r = study
+            .scenes
+            .iter()
+            .find(|r| r.scene == c.scene)
+            .expect("checks come from these scenes");
+        let _ = write!(s, "| {} | {} |", c.scene, c.ppd);
+        for t0 in &t0s {
+            match r.sweep.iter().find(|p| p.ppd == c.ppd && p.t0 == *t0) {
+                Some(p) => {
+                    let _ = write!(s, " {:.2}×, Q {:.2} |", p.time_ratio, p.q);
+                }
+                None => s.push_str(" – |"),
+            }
+        }
+        let _ = writeln!(
+            s,
+            " {} ({}) |",
+            yes_no(c.met()),
+            if c.monotone {
+                "monotone"
+            } else {
+                "not monotone"
+            }
+        );
+    }
+    s.push('\n');
+    s
+}
+
+fn peer_section(peer: &Result<PeerResult, String>) -> String {
+    let mut md = String::from("## Peer: Mitsuba 3 at equal time (Cornell box)\n\n");
     match peer {
         Ok(p) => {
             let _ = writeln!(
@@ -147,55 +630,64 @@ pub fn write(
             let _ = writeln!(md, "Not run: {why}.\n");
         }
     }
-    let p = cfg.out_dir.join("report.md");
-    std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
-    let json = serde_json::json!({ "scenes": results, "peer": peer.as_ref().ok(), "peer_error": peer.as_ref().err() });
-    let p = cfg.out_dir.join("results.json");
-    std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", p.display()))?;
-    plot(cfg, results)?;
-    println!("{md}");
-    Ok(())
+    md
 }
 
-/// Time (× reference) against FLIP for each scene's t0 sweep.
+/// Q against time (× reference) over each scene's t0 sweep, one line per scene and
+/// condition: lower-left is better.
 fn plot(cfg: &BenchConfig, results: &[SceneResult]) -> anyhow::Result<()> {
     let p = cfg.out_dir.join("tradeoff.svg");
-    let root = SVGBackend::new(&p, (800, 500)).into_drawing_area();
+    let root = SVGBackend::new(&p, (900, 560)).into_drawing_area();
     root.fill(&WHITE)?;
-    let max_flip = results
-        .iter()
-        .flat_map(|r| r.sweep.iter().map(|s| s.flip).chain([r.noise_floor.mean]))
-        .fold(0.01f64, f64::max)
-        * 1.1;
-    let max_t = results
-        .iter()
-        .flat_map(|r| r.sweep.iter().map(|s| s.time_ratio))
+    let points = || results.iter().flat_map(|r| r.sweep.iter());
+    let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+    let max_q = points().map(|s| finite(s.q)).fold(1.2f64, f64::max) * 1.05;
+    let max_t = points()
+        .map(|s| finite(s.time_ratio))
         .fold(1.0f64, f64::max)
         * 1.05;
     let mut chart = ChartBuilder::on(&root)
-        .caption("Speed against accuracy (t0 sweep)", ("sans-serif", 20))
+        .caption(
+            "t0 sweep: Q against time (lower-left is better)",
+            ("sans-serif", 20),
+        )
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..max_t, 0f64..max_flip)?;
+        .build_cartesian_2d(0f64..max_t, 0f64..max_q)?;
     chart
         .configure_mesh()
         .x_desc("time / reference time")
-        .y_desc("FLIP vs independent reference")
+        .y_desc("Q = FLIP(progressive, truth) / FLIP(reference, truth)")
         .draw()?;
-    for (i, r) in results.iter().enumerate() {
-        let c = Palette99::pick(i).to_rgba();
-        let pts: Vec<(f64, f64)> = r.sweep.iter().map(|s| (s.time_ratio, s.flip)).collect();
-        chart
-            .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))?
-            .label(r.scene.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
-        chart.draw_series(pts.iter().map(|&(x, y)| Circle::new((x, y), 3, c.filled())))?;
-        chart.draw_series(LineSeries::new(
-            [(0.0, r.noise_floor.mean), (max_t, r.noise_floor.mean)],
-            c.stroke_width(1),
-        ))?;
+    // The targets: Q = 1 and 0.5× time.
+    chart.draw_series(LineSeries::new(
+        [(0.0, Q_TARGET), (max_t, Q_TARGET)],
+        BLACK.mix(0.4).stroke_width(1),
+    ))?;
+    chart.draw_series(LineSeries::new(
+        [(TIME_TARGET, 0.0), (TIME_TARGET, max_q)],
+        BLACK.mix(0.4).stroke_width(1),
+    ))?;
+    let mut series = 0;
+    for r in results {
+        let mut ppds: Vec<f32> = r.sweep.iter().map(|s| s.ppd).collect();
+        ppds.dedup();
+        for ppd in ppds {
+            let c = Palette99::pick(series).to_rgba();
+            series += 1;
+            let mut pts: Vec<&SweepPoint> = r.sweep.iter().filter(|s| s.ppd == ppd).collect();
+            pts.sort_by(|a, b| a.t0.total_cmp(&b.t0));
+            let xy: Vec<(f64, f64)> = pts
+                .iter()
+                .map(|s| (finite(s.time_ratio), finite(s.q)))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(xy.clone(), c.stroke_width(2)))?
+                .label(format!("{} @ {ppd} ppd", r.scene))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
+            chart.draw_series(xy.iter().map(|&(x, y)| Circle::new((x, y), 3, c.filled())))?;
+        }
     }
     chart
         .configure_series_labels()
@@ -204,4 +696,44 @@ fn plot(cfg: &BenchConfig, results: &[SceneResult]) -> anyhow::Result<()> {
         .draw()?;
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(t0: f32, time_ratio: f64, q: f64) -> SweepPoint {
+        SweepPoint {
+            ppd: 60.0,
+            t0,
+            time_ratio,
+            pixel_fraction: 0.2,
+            flip: 0.1,
+            q,
+        }
+    }
+
+    #[test]
+    fn a_sweep_is_monotone_within_its_slack_and_met_at_both_ends() {
+        let good = [
+            point(0.25, 0.6, 0.85),
+            point(1.0, 0.4, 0.95),
+            point(4.0, 0.25, 1.2),
+        ];
+        let refs: Vec<&SweepPoint> = good.iter().rev().collect();
+        let c = sweep_check("s", 60.0, &refs);
+        assert!(c.monotone && c.met(), "{c:?}");
+        assert_eq!((c.cheapest_time, c.best_q), (0.25, 0.85));
+        // Time rising by 0.01 is timing noise; by 0.05 it is not monotone.
+        let noisy = [point(0.5, 0.40, 0.9), point(1.0, 0.41, 0.95)];
+        assert!(sweep_check("s", 60.0, &noisy.iter().collect::<Vec<_>>()).monotone);
+        let rising = [point(0.5, 0.40, 0.9), point(1.0, 0.45, 0.95)];
+        assert!(!sweep_check("s", 60.0, &rising.iter().collect::<Vec<_>>()).monotone);
+        // Q falling as t0 grows (more error allowed, less error got) is not monotone.
+        let q_falls = [point(0.5, 0.40, 0.95), point(1.0, 0.30, 0.9)];
+        assert!(!sweep_check("s", 60.0, &q_falls.iter().collect::<Vec<_>>()).monotone);
+        // Monotone, but never cheap enough.
+        let dear = [point(0.5, 0.5, 0.85), point(1.0, 0.4, 0.95)];
+        assert!(!sweep_check("s", 60.0, &dear.iter().collect::<Vec<_>>()).met());
+    }
 }

@@ -88,6 +88,39 @@ pub struct BenchArgs {
     /// tracing grows, and the report shows how the time ratios move with a pixel's cost.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub spp_factor: u32,
+    /// Declared viewing conditions to judge every scene at, pixels per degree, comma
+    /// separated (default 28,45,60,90; 28,60 with --quick).
+    #[arg(long, value_delimiter = ',', value_parser = parse_ppd)]
+    pub ppd: Vec<f32>,
+    /// Also generate this many varied scenes (written to OUT/corpus/) and judge them.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    pub corpus: Option<u64>,
+    /// Seed of the generated corpus: the same seed gives the same scenes.
+    #[arg(long, default_value_t = 1, requires = "corpus")]
+    pub seed: u64,
+    /// Judge corpus scenes also at every --ppd condition, not only at their declared one.
+    #[arg(long, requires = "corpus")]
+    pub corpus_at_conditions: bool,
+    /// Judge the corpus alone (skip the scenes of --scenes).
+    #[arg(long, requires = "corpus")]
+    pub corpus_only: bool,
+    /// Where converged renders are cached (default OUT/cache).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+}
+
+/// Pixels per degree: a finite number in (0, 1000] (1000 is far beyond any display seen
+/// by a person; FLIP's filters grow with it).
+fn parse_ppd(s: &str) -> Result<f32, String> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number of pixels per degree"))?;
+    if v.is_finite() && v > 0.0 && v <= 1000.0 {
+        Ok(v)
+    } else {
+        Err(format!("pixels per degree must lie in (0, 1000], got {s}"))
+    }
 }
 
 /// Runs the parsed command line.
@@ -149,17 +182,41 @@ async fn shutdown_signal() {
 }
 
 fn bench(a: &BenchArgs) -> anyhow::Result<()> {
-    let cfg = crate::bench::BenchConfig {
-        scenes_dir: a.scenes.clone(),
-        out_dir: a.out.clone(),
-        quick: a.quick,
-        spp_factor: a.spp_factor,
-    };
-    let results = crate::bench::run(&cfg)?;
+    let mut cfg = crate::bench::BenchConfig::new(a.scenes.clone(), a.out.clone(), a.quick);
+    cfg.spp_factor = a.spp_factor;
+    if !a.ppd.is_empty() {
+        cfg.conditions.clone_from(&a.ppd);
+    }
+    if let Some(dir) = &a.cache {
+        cfg.cache_dir.clone_from(dir);
+    }
+    cfg.bundled = !a.corpus_only;
+    cfg.corpus = a.corpus.map(|n| crate::bench::CorpusConfig {
+        scenes: usize::try_from(n).unwrap_or(usize::MAX),
+        seed: a.seed,
+        at_conditions: a.corpus_at_conditions,
+    });
+    let study = crate::bench::run(&cfg)?;
     eprintln!(
-        "bench: {} scenes; report in {}",
-        results.len(),
+        "bench: {} scenes, {} corpus scenes; report in {}",
+        study.scenes.len(),
+        study.corpus.len(),
         a.out.join("report.md").display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ppd_is_a_positive_finite_number_up_to_a_thousand() {
+        assert_eq!(parse_ppd("28"), Ok(28.0));
+        assert_eq!(parse_ppd(" 60.5"), Ok(60.5));
+        assert_eq!(parse_ppd("1000"), Ok(1000.0));
+        for bad in ["0", "-5", "NaN", "inf", "1000.5", "sixty", ""] {
+            assert!(parse_ppd(bad).is_err(), "{bad}");
+        }
+    }
 }
