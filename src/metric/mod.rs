@@ -203,6 +203,23 @@ pub fn block_map(
     // Per cell of the level: its batch range and how many of its seeds it used.
     let mut ranges: Vec<(usize, usize, usize)> = Vec::new();
     while !frontier.is_empty() {
+        // 0. A tree that would evaluate most of the image anyway (a noisy pair keeps every
+        // cell inhomogeneous) costs more than evaluating every pixel at once: the sampling,
+        // sorting and per-cell decisions come on top of the evaluations. Then every pixel
+        // of the cells left is evaluated, in raster order, and kept exactly.
+        let planned: usize = frontier
+            .iter()
+            .map(|c| {
+                let have = c.samples.len();
+                samples_for_area(c.area())
+                    .saturating_sub(have)
+                    .min((c.area() as usize).saturating_sub(have))
+            })
+            .sum();
+        if (evaluated + planned) as f64 > DENSE_SHARE * n as f64 {
+            evaluated += evaluate_densely(model, a, b, &frontier, &mut map, &mut leaves, eps);
+            break;
+        }
         // 1. Choose each cell's new samples (same draws, same order as the reference).
         batch.clear();
         ranges.clear();
@@ -349,6 +366,56 @@ pub fn block_map(
         leaves,
         pixels_evaluated: evaluated,
     }
+}
+
+/// Share of the image beyond which the quad-tree stops and evaluates every pixel of the
+/// cells it has left (the tree's own work then outweighs what it saves).
+pub const DENSE_SHARE: f64 = 0.5;
+
+/// Every pixel of `cells` evaluated and written exactly into `map`, one leaf per cell;
+/// returns the number of pixels evaluated.
+fn evaluate_densely(
+    model: &VisionModel,
+    a: &ContrastStack,
+    b: &ContrastStack,
+    cells: &[Cell],
+    map: &mut Image<f32>,
+    leaves: &mut Vec<Leaf>,
+    eps: f64,
+) -> usize {
+    let mut coords: Vec<PixelCoord> = Vec::new();
+    let mut ranges = Vec::with_capacity(cells.len());
+    for c in cells {
+        let start = coords.len();
+        for y in c.y..c.y + c.h {
+            coords.extend((c.x..c.x + c.w).map(|x| PixelCoord::new(x, y)));
+        }
+        ranges.push(start..coords.len());
+    }
+    let mut values = vec![0f32; coords.len()];
+    model.distances_at(a, b, &coords, &mut values);
+    for (c, r) in cells.iter().zip(ranges) {
+        let v = &values[r.clone()];
+        for (&p, &d) in coords[r].iter().zip(v) {
+            map.set(p.x, p.y, d);
+        }
+        let k = v.len().max(1) as f64;
+        let mean = v.iter().map(|&d| f64::from(d)).sum::<f64>() / k;
+        let close = v
+            .iter()
+            .filter(|&&d| (f64::from(d) - mean).abs() <= eps)
+            .count();
+        leaves.push(Leaf {
+            x: c.x,
+            y: c.y,
+            width: c.w,
+            height: c.h,
+            samples: v.len() as u32,
+            mean: mean as f32,
+            homogeneity: (close as f64 / k) as f32,
+        });
+    }
+    coords.len()
 }
 
 /// Emptied sample and seed vectors of finished cells, reused by new ones (the tree has
