@@ -666,60 +666,61 @@ async fn get_frame(
         )
         .at("layer")
     };
-    let bytes: Vec<u8> = if let Some(live) = st.jobs.live(id) {
+    let ctype = if exr { "image/x-exr" } else { "image/png" };
+    let headers = [
+        (header::CONTENT_TYPE, ctype),
+        (header::CACHE_CONTROL, "no-store"),
+    ];
+    if let Some(live) = st.jobs.live(id) {
+        // Encoded once per frame and shared by every request (`LiveFrame::encoded_blocking`).
         let lf = live.snapshot().frame.clone().ok_or_else(no_frame)?;
-        if !exr && layer == "image" {
-            lf.image_png()
-                .await
-                .map_err(|e| ApiError::internal("encoding a frame", &e))?
-                .to_vec()
-        } else {
-            let layer = layer.to_owned();
-            tokio::task::spawn_blocking(move || {
-                if exr {
-                    crate::raster::encode_exr(&lf.frame.image)
-                        .map(Some)
-                        .map_err(|e| e.to_string())
-                } else {
-                    lf.encode_layer_blocking(&layer)
-                }
-            })
+        drop(live);
+        let layer = layer.to_owned();
+        let bytes = tokio::task::spawn_blocking(move || lf.encoded_blocking(&layer, exr))
             .await
             .map_err(|e| ApiError::internal("encoding a frame", &e))?
             .map_err(|e| ApiError::internal("encoding a frame", &e))?
-            .ok_or_else(missing_layer)?
-        }
-    } else {
-        let job = st
-            .jobs
-            .store()
-            .get(id)
-            .await?
-            .ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
-        if !job.has_frame {
-            return Err(no_frame());
-        }
-        let path = st
-            .jobs
-            .store()
-            .layer_path(id, layer, exr)
             .ok_or_else(missing_layer)?;
-        match tokio::fs::read(&path).await {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer()),
-            Err(e) => return Err(ApiError::internal("reading a stored frame", &e)),
-        }
+        return Ok((headers, bytes).into_response());
+    }
+    let job = st
+        .jobs
+        .store()
+        .get(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
+    if !job.has_frame {
+        return Err(no_frame());
+    }
+    let path = st
+        .jobs
+        .store()
+        .layer_path(id, layer, exr)
+        .ok_or_else(missing_layer)?;
+    // Streamed from the file: a request holds a file handle and a small buffer, never the
+    // file (a 4096² EXR is 201 MB; one copy per request let 20 clients that did not read
+    // hold 3.8 GB).
+    let file = match tokio::fs::File::open(&path).await {
+        Ok(f) => f,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer()),
+        Err(e) => return Err(ApiError::internal("reading a stored frame", &e)),
     };
-    let ctype = if exr { "image/x-exr" } else { "image/png" };
-    Ok((
-        [
-            (header::CONTENT_TYPE, ctype),
-            (header::CACHE_CONTROL, "no-store"),
-        ],
-        bytes,
-    )
-        .into_response())
+    let len = file
+        .metadata()
+        .await
+        .map_err(|e| ApiError::internal("reading a stored frame", &e))?
+        .len();
+    let body = axum::body::Body::from_stream(tokio_util::io::ReaderStream::with_capacity(
+        file, FILE_CHUNK,
+    ));
+    let mut res = (headers, body).into_response();
+    res.headers_mut()
+        .insert(header::CONTENT_LENGTH, HeaderValue::from(len));
+    Ok(res)
 }
+
+/// Read size when streaming a stored file.
+const FILE_CHUNK: usize = 64 * 1024;
 
 #[cfg(test)]
 mod tests {

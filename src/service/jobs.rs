@@ -144,8 +144,20 @@ pub struct LiveFrame {
     /// A std `OnceLock` (not tokio's `OnceCell`) so the worker thread can wait for the
     /// encoding a watcher already started instead of encoding the final frame twice.
     png: std::sync::OnceLock<Result<Bytes, String>>,
+    /// The other layers' PNGs and the EXR ([`OTHER_ENCODINGS`]), likewise encoded once when
+    /// first asked for and shared by every request and the final files: one encoding per
+    /// frame, not one per request (a 4096² EXR is 201 MB).
+    others: [std::sync::OnceLock<Result<Option<Bytes>, String>>; 4],
     metrics: Arc<Metrics>,
 }
+
+/// The encodings [`LiveFrame::encoded`] caches besides the image PNG: (layer, EXR?).
+const OTHER_ENCODINGS: [(&str, bool); 4] = [
+    ("samples", false),
+    ("distance", false),
+    ("classes", false),
+    ("image", true),
+];
 
 impl LiveFrame {
     fn new(frame: Frame, exposure: f32, progress: Value, metrics: Arc<Metrics>) -> Self {
@@ -159,6 +171,7 @@ impl LiveFrame {
             progress,
             layers,
             png: std::sync::OnceLock::new(),
+            others: Default::default(),
             metrics,
         }
     }
@@ -190,6 +203,29 @@ impl LiveFrame {
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
     pub fn encode_layer_blocking(&self, layer: &str) -> Result<Option<Vec<u8>>, String> {
         layers::encode_layer(&self.frame, layer, self.exposure).map_err(|e| e.to_string())
+    }
+
+    /// One layer as PNG, or the image as EXR, encoded once and shared (`None` if the
+    /// frame lacks the layer or the layer is unknown). Blocking.
+    pub fn encoded_blocking(&self, layer: &str, exr: bool) -> Result<Option<Bytes>, String> {
+        if layer == "image" && !exr {
+            return self.image_png_blocking().map(Some);
+        }
+        let Some(k) = OTHER_ENCODINGS.iter().position(|e| *e == (layer, exr)) else {
+            return Ok(None);
+        };
+        self.others[k]
+            .get_or_init(|| {
+                let bytes = if exr {
+                    crate::raster::encode_exr(&self.frame.image)
+                        .map(Some)
+                        .map_err(|e| e.to_string())
+                } else {
+                    self.encode_layer_blocking(layer)
+                };
+                bytes.map(|b| b.map(Bytes::from))
+            })
+            .clone()
     }
 }
 
@@ -936,22 +972,16 @@ fn remove_placeholder(dir: &std::path::Path) {
 /// "no samples layer" while its image, state and statistics are intact.
 fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), String> {
     use rayon::prelude::*;
-    // The other layers' PNGs and the EXR, encoded in parallel.
-    let (pngs, exr) = rayon::join(
-        || {
-            layers::LAYERS
-                .par_iter()
-                .filter(|&&layer| layer != "image")
-                .map(|&layer| {
-                    let png = lf.encode_layer_blocking(layer)?;
-                    Ok(png.map(|p| (format!("{layer}.png"), p)))
-                })
-                .collect::<Result<Vec<_>, String>>()
-        },
-        || crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string()),
-    );
-    let mut files: Vec<(String, Vec<u8>)> = pngs?.into_iter().flatten().collect();
-    files.push(("image.exr".to_owned(), exr?));
+    // The other layers' PNGs and the EXR, encoded in parallel (or taken from the
+    // encodings a request already made).
+    let files = OTHER_ENCODINGS
+        .par_iter()
+        .map(|&(layer, exr)| {
+            let name = format!("{layer}.{}", if exr { "exr" } else { "png" });
+            Ok(lf.encoded_blocking(layer, exr)?.map(|b| (name, b)))
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    let files: Vec<(String, Bytes)> = files.into_iter().flatten().collect();
     store::write_files_blocking(dir, &files).map_err(|e| e.to_string())
 }
 

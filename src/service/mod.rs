@@ -16,6 +16,7 @@ pub mod examples;
 pub mod http;
 pub mod jobs;
 pub mod metrics;
+pub mod stall;
 pub mod store;
 pub mod viewer;
 pub mod ws;
@@ -48,6 +49,9 @@ pub struct Config {
     /// within `request_deadline` ([`http::REQUEST_DEADLINE`]); tests shorten them.
     pub header_timeout: Duration,
     pub request_deadline: Duration,
+    /// A response or stream whose client reads nothing for this long is cut
+    /// ([`stall::StallLimit`]); `--client-stall`.
+    pub client_stall: Duration,
 }
 
 impl Config {
@@ -64,6 +68,7 @@ impl Config {
             max_watchers: DEFAULT_MAX_WATCHERS,
             header_timeout: HEADER_TIMEOUT,
             request_deadline: http::REQUEST_DEADLINE,
+            client_stall: CLIENT_STALL,
         }
     }
 }
@@ -79,6 +84,10 @@ pub const DEFAULT_MAX_BODY_BYTES: usize = 8 << 20;
 /// header held its connection for good (measured: still open after 45 s), and enough of
 /// them exhaust the file descriptors ("slowloris").
 pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+/// 20 s without reading a byte: a live viewer on a poor link still takes something in
+/// that time (a 64 KiB fragment at 26 kbit/s); a client that has stopped reading is cut
+/// before it holds much (its frame, a file handle).
+pub const CLIENT_STALL: Duration = Duration::from_secs(20);
 /// How long shutdown waits for requests in flight before closing their connections.
 const DRAIN_ON_SHUTDOWN: Duration = Duration::from_secs(10);
 
@@ -144,7 +153,14 @@ pub async fn run(
         shutdown.await;
         stop2.cancel();
     });
-    serve(listener, app, &stop, config.header_timeout).await;
+    serve(
+        listener,
+        app,
+        &stop,
+        config.header_timeout,
+        config.client_stall,
+    )
+    .await;
     // Never leave workers rendering behind us.
     stop.cancel();
     jobs.shutdown().await;
@@ -164,6 +180,7 @@ async fn serve(
     app: axum::Router,
     stop: &tokio_util::sync::CancellationToken,
     header_timeout: Duration,
+    client_stall: Duration,
 ) {
     use hyper_util::rt::{TokioIo, TokioTimer};
     let mut http = hyper::server::conn::http1::Builder::new();
@@ -194,7 +211,10 @@ async fn serve(
         let _ = stream.set_nodelay(true);
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
         let conn = http
-            .serve_connection(TokioIo::new(stream), service)
+            .serve_connection(
+                TokioIo::new(stall::StallLimit::new(stream, client_stall)),
+                service,
+            )
             .with_upgrades();
         let stop = stop.clone();
         connections.spawn(async move {

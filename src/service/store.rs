@@ -437,7 +437,10 @@ pub fn write_final_image_blocking(dir: &Path, png: &[u8]) -> std::io::Result<()>
 
 /// Writes `files` (name, bytes) into `dir` atomically (temp file + rename), synchronously:
 /// called from worker threads, never from the async runtime.
-pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io::Result<()> {
+pub fn write_files_blocking<B: AsRef<[u8]> + Sync>(
+    dir: &Path,
+    files: &[(String, B)],
+) -> std::io::Result<()> {
     use rayon::prelude::*;
     use std::io::Write;
     if !dir.exists() {
@@ -455,7 +458,7 @@ pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io:
     files.par_iter().try_for_each(|(name, bytes)| {
         let tmp = dir.join(format!(".{name}.tmp"));
         let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
+        f.write_all(bytes.as_ref())?;
         f.sync_all()
     })?;
     for (name, _) in files {
