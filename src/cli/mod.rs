@@ -50,6 +50,10 @@ pub struct ServeArgs {
     /// Largest request body in bytes.
     #[arg(long, default_value_t = crate::service::DEFAULT_MAX_BODY_BYTES)]
     pub max_body: usize,
+    /// Seconds a response or stream may wait for a client that reads nothing before
+    /// its connection is cut.
+    #[arg(long, default_value_t = crate::service::CLIENT_STALL.as_secs_f64(), value_parser = positive_seconds)]
+    pub client_stall: f64,
     /// Log format on stderr: `text` for people, `json` (one object per line) for log
     /// collectors. Read by `main` before the subscriber is installed.
     #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
@@ -118,11 +122,24 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         config.token = a.token;
         config.queue_capacity = a.queue;
         config.max_body_bytes = a.max_body;
+        config.client_stall = std::time::Duration::from_secs_f64(a.client_stall);
         if let Some(p) = a.max_pixels {
             config.limits.max_pixels = p;
         }
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// A duration in seconds for a flag: finite, above zero, at most a day.
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= 86_400.0 {
+        Ok(v)
+    } else {
+        Err(format!("{s} s is outside (0, 86400]"))
+    }
 }
 
 /// Ctrl-C, or SIGTERM on Unix (what service managers and containers send).

@@ -720,7 +720,7 @@ async fn get_frame(
 }
 
 /// Read size when streaming a stored file.
-const FILE_CHUNK: usize = 64 * 1024;
+const FILE_CHUNK: usize = 16 * 1024;
 
 #[cfg(test)]
 mod tests {

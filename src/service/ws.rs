@@ -49,8 +49,8 @@ use uuid::Uuid;
 pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
 
 /// Size of the fragments a frame's PNG is sent in: the most a watcher's write buffer
-/// holds of it beyond the library's own 128 KiB buffer.
-pub const FRAGMENT: usize = 64 * 1024;
+/// holds of it.
+pub const FRAGMENT: usize = 16 * 1024;
 
 type Ws = WebSocketStream<TokioIo<hyper::upgrade::Upgraded>>;
 type Tx = SplitSink<Ws, Message>;
@@ -134,7 +134,11 @@ pub async fn stream(
 
 /// One watcher's connection, from the upgrade to the close.
 async fn watch(upgraded: hyper::upgrade::Upgraded, st: AppState, id: Uuid) {
+    // Small buffers: 256 watchers × the library's default 128 KiB to read and 128 KiB to
+    // write would be 64 MiB before any frame. Writes go out frame by frame.
     let config = WebSocketConfig::default()
+        .read_buffer_size(4096)
+        .write_buffer_size(0)
         .max_message_size(Some(MAX_CLIENT_MESSAGE))
         .max_frame_size(Some(MAX_CLIENT_MESSAGE));
     let socket = Ws::from_raw_socket(TokioIo::new(upgraded), Role::Server, Some(config)).await;
