@@ -187,3 +187,58 @@ async fn clients_that_never_read_hold_little_and_are_cut() {
     assert_eq!(png, stored, "the stream's frame is the stored image");
     drop(server);
 }
+
+/// 64 submissions of 8 MB at once (a mesh refused only after it is parsed, for an unknown
+/// material): validation is bounded by bytes in flight, so the server's peak resident
+/// memory stays under 1 GB (measured before: ~210 MB per body and nothing bounding how
+/// many at once, 4.8 GB for 48). Every one gets its answer.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sixty_four_concurrent_eight_megabyte_submissions_peak_under_a_gigabyte() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let c = reqwest::Client::new();
+    let server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let pid = server.0.id();
+    let mut body = String::from(
+        r#"{"version": 1, "image": {"width": 8, "height": 8},
+        "camera": {"position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40},
+        "materials": {"w": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]}},
+        "objects": [{"type": "mesh", "material": "nowhere", "positions": ["#,
+    );
+    let mut k = 0u32;
+    while body.len() < (8 << 20) - 64 * 1024 {
+        let x = f64::from(k) * 1e-3;
+        body.push_str(&format!("[{x:.3},0,0],[{x:.3},1,0],[{x:.3},0,1],"));
+        k += 1;
+    }
+    body.push_str("[0,0,0]], \"indices\": [[0,1,2]]}]}");
+    let body = bytes::Bytes::from(body);
+    let stop = tokio_util::sync::CancellationToken::new();
+    let sampler = tokio::spawn(peak_rss_until(pid, stop.clone()));
+    let t = Instant::now();
+    let mut tasks = Vec::new();
+    for _ in 0..64 {
+        let (c, body) = (c.clone(), body.clone());
+        tasks.push(tokio::spawn(async move {
+            c.post(format!("http://127.0.0.1:{port}/v1/jobs"))
+                .header("content-type", "application/json")
+                .body(body)
+                .send()
+                .await
+                .map(|r| r.status().as_u16())
+        }));
+    }
+    for t in tasks {
+        assert_eq!(t.await.unwrap().unwrap(), 422);
+    }
+    stop.cancel();
+    let (peak, _) = sampler.await.unwrap();
+    let hwm = proc_kib(pid, "VmHWM");
+    eprintln!(
+        "64 concurrent {} byte submissions answered in {:.1} s; sampled peak RSS {peak} KiB, VmHWM {hwm} KiB",
+        body.len(),
+        t.elapsed().as_secs_f64()
+    );
+    assert!(hwm.max(peak) < 1_000_000, "peak {} KiB", hwm.max(peak));
+    drop(server);
+}
