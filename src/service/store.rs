@@ -472,14 +472,12 @@ impl Store {
     }
 
     /// Removes a finished job and its images; false if it does not exist or is not finished.
+    /// The files go first: on a full disk that frees the space the record's deletion needs
+    /// (a record left without its files answers 404 for its frames, and a second DELETE
+    /// removes it).
     pub async fn delete_finished(&self, id: Uuid) -> Result<bool, StoreError> {
-        let r = sqlx::query(
-            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
-        )
-        .bind(id.to_string())
-        .execute(&self.pool)
-        .await?;
-        if r.rows_affected() == 0 {
+        let finished = self.get(id).await?.is_some_and(|j| j.state.is_finished());
+        if !finished {
             return Ok(false);
         }
         let dir = self.job_dir(id);
@@ -488,7 +486,13 @@ impl Store {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => return Err(e.into()),
         }
-        Ok(true)
+        let r = sqlx::query(
+            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
+        )
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
     }
 
     /// Path of a stored layer (`image`, ...) as PNG, or of the EXR image.
