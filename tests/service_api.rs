@@ -572,6 +572,7 @@ async fn bad_scenes_get_their_code_and_path() {
         let r = s
             .client
             .post(s.url("/v1/jobs"))
+            .header("content-type", "application/json")
             .body(body)
             .send()
             .await
@@ -689,7 +690,13 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
             "image.width",
         ),
     ] {
-        let r = c.post(s.url("/v1/jobs")).body(doc).send().await.unwrap();
+        let r = c
+            .post(s.url("/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(doc)
+            .send()
+            .await
+            .unwrap();
         let st = r.status().as_u16();
         let b: Value = r.json().await.unwrap();
         assert!(matches!(st, 400 | 413 | 422), "{what}: {st} {b}");
@@ -701,7 +708,7 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
     {
         use tokio::io::{AsyncReadExt, AsyncWriteExt};
         let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-        let head = "POST /v1/jobs HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n";
+        let head = "POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n";
         sock.write_all(head.as_bytes()).await.unwrap();
         let chunk = vec![b' '; 64 * 1024];
         for _ in 0..20 {
@@ -938,7 +945,7 @@ async fn slow_headers_and_bodies_are_cut_but_streams_are_not() {
         .unwrap();
     let silent = tokio::net::TcpStream::connect(s.addr).await.unwrap();
     let mut idle = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-    idle.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+    idle.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         .await
         .unwrap();
     let t = Instant::now();
@@ -967,7 +974,7 @@ async fn slow_headers_and_bodies_are_cut_but_streams_are_not() {
     // A body promised but not sent: 408 in our JSON error shape, then the server closes.
     let mut slow = tokio::net::TcpStream::connect(s.addr).await.unwrap();
     slow.write_all(
-        b"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+        b"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
           Content-Length: 1000\r\n\r\n{\"ver",
     )
     .await

@@ -50,6 +50,17 @@ pub struct ServeArgs {
     /// Largest request body in bytes.
     #[arg(long, default_value_t = crate::service::DEFAULT_MAX_BODY_BYTES)]
     pub max_body: usize,
+    /// Seconds a response or stream may wait for a client that reads nothing before
+    /// its connection is cut.
+    #[arg(long, default_value_t = crate::service::CLIENT_STALL.as_secs_f64(), value_parser = positive_seconds)]
+    pub client_stall: f64,
+    /// Seconds a render may run before it is stopped and its job failed (`timeout`).
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
+    pub job_timeout: f64,
+    /// A host name (besides its addresses and `localhost`) by which clients reach this
+    /// server, accepted in `Host` and `Origin` when there is no token; repeatable.
+    #[arg(long = "allowed-host", value_name = "NAME")]
+    pub allowed_hosts: Vec<String>,
     /// Log format on stderr: `text` for people, `json` (one object per line) for log
     /// collectors. Read by `main` before the subscriber is installed.
     #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
@@ -140,22 +151,52 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
     if a.queue == 0 {
         anyhow::bail!("--queue must be at least 1");
     }
+    if let Some(t) = &a.token {
+        // An empty token used to switch the check off silently; a blank one can never
+        // match (the header's value is trimmed).
+        if t.trim().is_empty() {
+            anyhow::bail!(
+                "the token (--token or GLIMPSE_TOKEN) is empty or blank; give a real one, or unset it to run without"
+            );
+        }
+    }
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
         let listener = tokio::net::TcpListener::bind(&a.addr)
             .await
             .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", a.addr))?;
-        tracing::info!("listening on http://{}", listener.local_addr()?);
+        let local = listener.local_addr()?;
+        tracing::info!("listening on http://{local}");
+        if a.token.is_none() && !local.ip().is_loopback() {
+            tracing::warn!(
+                "listening on {local}, beyond this machine, without a token: anyone who can reach it can submit, cancel and delete jobs; set --token or GLIMPSE_TOKEN"
+            );
+        }
         let mut config = crate::service::Config::new(a.data);
         config.workers = a.workers;
         config.token = a.token;
         config.queue_capacity = a.queue;
         config.max_body_bytes = a.max_body;
+        config.client_stall = std::time::Duration::from_secs_f64(a.client_stall);
+        config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
+        config.allowed_hosts = a.allowed_hosts;
         if let Some(p) = a.max_pixels {
             config.limits.max_pixels = p;
         }
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// A duration in seconds for a flag: finite, above zero, at most a day.
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= 86_400.0 {
+        Ok(v)
+    } else {
+        Err(format!("{s} s is outside (0, 86400]"))
+    }
 }
 
 /// Ctrl-C, or SIGTERM on Unix (what service managers and containers send).

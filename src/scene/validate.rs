@@ -214,7 +214,7 @@ fn syntax_error(json: &str, e: &serde_json::Error) -> SceneError {
         return one(
             SceneErrorKind::InvalidJson,
             String::new(),
-            format!("nested deeper than 128 levels at {at}; a scene never needs that"),
+            format!("nested 128 levels deep or more at {at} (the limit is 127); a scene never needs that"),
         );
     }
     let path = path_at(json, offset);

@@ -144,8 +144,20 @@ pub struct LiveFrame {
     /// A std `OnceLock` (not tokio's `OnceCell`) so the worker thread can wait for the
     /// encoding a watcher already started instead of encoding the final frame twice.
     png: std::sync::OnceLock<Result<Bytes, String>>,
+    /// The other layers' PNGs and the EXR ([`OTHER_ENCODINGS`]), likewise encoded once when
+    /// first asked for and shared by every request and the final files: one encoding per
+    /// frame, not one per request (a 4096² EXR is 201 MB).
+    others: [std::sync::OnceLock<Result<Option<Bytes>, String>>; 4],
     metrics: Arc<Metrics>,
 }
+
+/// The encodings [`LiveFrame::encoded`] caches besides the image PNG: (layer, EXR?).
+const OTHER_ENCODINGS: [(&str, bool); 4] = [
+    ("samples", false),
+    ("distance", false),
+    ("classes", false),
+    ("image", true),
+];
 
 impl LiveFrame {
     fn new(frame: Frame, exposure: f32, progress: Value, metrics: Arc<Metrics>) -> Self {
@@ -159,6 +171,7 @@ impl LiveFrame {
             progress,
             layers,
             png: std::sync::OnceLock::new(),
+            others: Default::default(),
             metrics,
         }
     }
@@ -190,6 +203,29 @@ impl LiveFrame {
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
     pub fn encode_layer_blocking(&self, layer: &str) -> Result<Option<Vec<u8>>, String> {
         layers::encode_layer(&self.frame, layer, self.exposure).map_err(|e| e.to_string())
+    }
+
+    /// One layer as PNG, or the image as EXR, encoded once and shared (`None` if the
+    /// frame lacks the layer or the layer is unknown). Blocking.
+    pub fn encoded_blocking(&self, layer: &str, exr: bool) -> Result<Option<Bytes>, String> {
+        if layer == "image" && !exr {
+            return self.image_png_blocking().map(Some);
+        }
+        let Some(k) = OTHER_ENCODINGS.iter().position(|e| *e == (layer, exr)) else {
+            return Ok(None);
+        };
+        self.others[k]
+            .get_or_init(|| {
+                let bytes = if exr {
+                    crate::raster::encode_exr(&self.frame.image)
+                        .map(Some)
+                        .map_err(|e| e.to_string())
+                } else {
+                    self.encode_layer_blocking(layer)
+                };
+                bytes.map(|b| b.map(Bytes::from))
+            })
+            .clone()
     }
 }
 
@@ -399,7 +435,15 @@ pub fn render_scene(
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, crate::cancel::Cancelled> {
+    // Preparing the scene (the BVH: ~1 s for the largest mesh a request may hold, a
+    // million triangles) cannot stop midway; a cancel is seen on either side of it.
+    if cancel.is_cancelled() {
+        return Err(crate::cancel::Cancelled);
+    }
     let tracer = PathTracer::new(scene);
+    if cancel.is_cancelled() {
+        return Err(crate::cancel::Cancelled);
+    }
     progressive::render(scene, &tracer, &RenderOptions::default(), on_frame, cancel)
 }
 
@@ -412,6 +456,11 @@ struct Inner {
     metrics: Arc<Metrics>,
     rt: tokio::runtime::Handle,
     shutting_down: AtomicBool,
+    /// A render running longer than this is stopped and its job failed (`timeout`).
+    job_timeout: std::time::Duration,
+    /// The last store or job-file write that failed, until one succeeds again (a full
+    /// or unwritable disk): `/healthz` reports it and submissions get 503.
+    store_fault: Mutex<Option<String>>,
     workers: Mutex<Vec<std::thread::JoinHandle<()>>>,
     /// Test hook, called by the worker between a job's `done` and its late file writes
     /// (to hold it there and look at what a crash at that point would leave).
@@ -419,6 +468,52 @@ struct Inner {
 }
 
 type AfterDoneHook = Arc<dyn Fn(Uuid) + Send + Sync>;
+
+impl Inner {
+    /// Records a failed store or file write (the disk may be full).
+    fn write_failed(&self, what: &str, e: &dyn std::fmt::Display) {
+        tracing::error!("{what}: {e}");
+        *lock(&self.store_fault) = Some(format!("{what}: {e}"));
+    }
+
+    /// A write succeeded: whatever failed before works again.
+    fn wrote(&self) {
+        let mut f = lock(&self.store_fault);
+        if f.take().is_some() {
+            tracing::info!("the store is writable again");
+        }
+    }
+
+    /// Runs a blocking `write` until it succeeds, pausing [`WRITE_RETRY`] after each
+    /// failure (recorded as the store's fault); false if the server stops meanwhile.
+    fn write_until_done<E: std::fmt::Display>(
+        &self,
+        what: &str,
+        mut write: impl FnMut() -> Result<(), E>,
+    ) -> bool {
+        loop {
+            match write() {
+                Ok(()) => {
+                    self.wrote();
+                    return true;
+                }
+                Err(e) => self.write_failed(what, &e),
+            }
+            if self.shutting_down.load(Ordering::SeqCst) {
+                return false;
+            }
+            std::thread::sleep(WRITE_RETRY);
+        }
+    }
+}
+
+/// How long a worker waits before trying a failed store write again: the disk is full or
+/// unwritable until an operator acts, so a second is soon enough and costs nothing.
+const WRITE_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// A render's time limit unless `--job-timeout` says otherwise: the largest job the
+/// server takes (a 4096² image at 256 spp, `server_limits`) runs for minutes to an hour.
+pub const DEFAULT_JOB_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2 * 3600);
 
 /// Handle to the job machinery (cheap to clone; shared by every request handler).
 #[derive(Clone)]
@@ -434,6 +529,7 @@ impl Jobs {
         limits: Limits,
         workers: usize,
         queue_capacity: usize,
+        job_timeout: std::time::Duration,
         metrics: Arc<Metrics>,
     ) -> Result<Self, StoreError> {
         Self::start_with(
@@ -441,6 +537,7 @@ impl Jobs {
             limits,
             workers,
             queue_capacity,
+            job_timeout,
             metrics,
             render_scene,
         )
@@ -453,6 +550,7 @@ impl Jobs {
         limits: Limits,
         workers: usize,
         queue_capacity: usize,
+        job_timeout: std::time::Duration,
         metrics: Arc<Metrics>,
         render: RenderFn,
     ) -> Result<Self, StoreError> {
@@ -466,6 +564,8 @@ impl Jobs {
             metrics,
             rt: tokio::runtime::Handle::current(),
             shutting_down: AtomicBool::new(false),
+            job_timeout,
+            store_fault: Mutex::new(None),
             workers: Mutex::new(Vec::new()),
             after_done: Mutex::new(None),
         });
@@ -489,6 +589,12 @@ impl Jobs {
         }
         *lock(&inner.workers) = handles;
         Ok(Self { inner })
+    }
+
+    /// What is wrong with the store's disk, if its last write failed.
+    #[must_use]
+    pub fn store_fault(&self) -> Option<String> {
+        lock(&self.inner.store_fault).clone()
     }
 
     #[must_use]
@@ -534,9 +640,13 @@ impl Jobs {
         }
         let id = Uuid::now_v7();
         let rec = match inner.store.insert(id, name, scene_json).await {
-            Ok(r) => r,
+            Ok(r) => {
+                inner.wrote();
+                r
+            }
             Err(e) => {
                 inner.queue.release();
+                inner.write_failed("storing a new job", &e);
                 return Err(e.into());
             }
         };
@@ -590,6 +700,11 @@ impl Jobs {
         };
         if rec.state.is_finished() {
             return Ok(CancelOutcome::AlreadyFinished(rec));
+        }
+        // Durable before the 202: a restart finishes the job as cancelled, not runs it.
+        if let Err(e) = self.inner.store.request_cancel(id).await {
+            self.inner.write_failed("recording a cancel", &e);
+            return Err(e);
         }
         let live = self.live(id);
         if let Some(l) = &live {
@@ -667,50 +782,38 @@ fn worker_loop(inner: &Arc<Inner>) {
         if live.cancel.is_cancelled() {
             continue; // cancelled while queued (the store already says so)
         }
-        // `running` is committed while the render starts, not before: the record need
-        // not be durable (recovery turns `running` back into `queued` anyway), and the
-        // commit's sync (0.6-4 ms on the test machine) would delay every job. `run_job` waits for it before any
-        // other write of the job, and drops the job if it had left `queued` meanwhile (a
-        // cancel that won the race; its token is already cancelled, so the render stops
-        // at once).
+        // `running`, with the attempt counted, is committed before the render starts: a
+        // job that takes the server down is then known at the next start-up and stopped
+        // after `store::MAX_ATTEMPTS` (a poison job). The commit costs one sync
+        // (0.6-4 ms on the test machine) before the first frame.
         let started = store::now_rfc3339();
-        let marked = {
-            let (store, started) = (inner.store.clone(), started.clone());
-            inner
-                .rt
-                .spawn(async move { store.mark_running_at(id, &started).await })
-        };
+        match inner.rt.block_on(inner.store.mark_running_at(id, &started)) {
+            Ok(true) => inner.wrote(),
+            Ok(false) => {
+                // Left `queued` meanwhile (a cancel won the race and recorded it).
+                lock(&inner.live).remove(&id);
+                live.settled.send_replace(true);
+                continue;
+            }
+            Err(e) => {
+                // The disk is full or unwritable: the job stays queued, in the store and
+                // in the queue, and is tried again after a pause.
+                inner.write_failed("starting a job", &e);
+                std::thread::sleep(WRITE_RETRY);
+                inner.queue.push_force(id);
+                continue;
+            }
+        }
         let mut job = live.snapshot().job.clone();
         job.state = JobState::Running;
         job.started_at = Some(started);
         live.publish(job.clone(), None);
         tracing::info!(%id, state = "running", "job started");
         inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
-        run_job(inner, &live, job, marked);
+        run_job(inner, &live, job);
         inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
         lock(&inner.live).remove(&id);
         live.settled.send_replace(true);
-    }
-}
-
-/// Waits for the `running` commit started by the worker loop; false if the job must not
-/// be written any more (it had left `queued`, or the store failed).
-fn wait_marked(
-    inner: &Inner,
-    id: Uuid,
-    marked: tokio::task::JoinHandle<Result<bool, StoreError>>,
-) -> bool {
-    match inner.rt.block_on(marked) {
-        Ok(Ok(true)) => true,
-        Ok(Ok(false)) => false,
-        Ok(Err(e)) => {
-            tracing::error!(%id, "cannot start job: {e}");
-            false
-        }
-        Err(e) => {
-            tracing::error!(%id, "cannot start job: {e}");
-            false
-        }
     }
 }
 
@@ -730,12 +833,7 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-fn run_job(
-    inner: &Arc<Inner>,
-    live: &Arc<LiveJob>,
-    mut job: JobRecord,
-    marked: tokio::task::JoinHandle<Result<bool, StoreError>>,
-) {
+fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     let id = live.id;
     let start = Instant::now();
     let parsed = lock(&live.parsed).take();
@@ -764,6 +862,20 @@ fn run_job(
     let mut last_pixels = 0u64;
     // Render time is counted as it passes (per frame), so the counter moves during long jobs.
     let mut counted_s = 0.0f64;
+    // The time limit cancels the render like a user would, and says why.
+    let timed_out = Arc::new(AtomicBool::new(false));
+    let timer = {
+        let (cancel, timed_out, limit) = (
+            live.cancel.clone(),
+            Arc::clone(&timed_out),
+            inner.job_timeout,
+        );
+        inner.rt.spawn(async move {
+            tokio::time::sleep(limit).await;
+            timed_out.store(true, Ordering::SeqCst);
+            cancel.cancel();
+        })
+    };
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         let scene = match parsed.map_or_else(
             || parse_scene(&scene_json, &SceneOrigin::Request, &inner.limits),
@@ -809,6 +921,7 @@ fn run_job(
             Err(_) => Outcome::Cancelled,
         }
     }));
+    timer.abort();
     let outcome = outcome.unwrap_or_else(|p| {
         let msg = panic_message(p.as_ref());
         tracing::error!(%id, "render panicked: {msg}");
@@ -827,11 +940,6 @@ fn run_job(
         // Not fatal: the final image then goes through temp file + rename + folder sync.
         tracing::warn!(%id, "cannot prepare the job folder: {e}");
     }
-    if !wait_marked(inner, id, marked) {
-        // Cancelled while still `queued` in the store: that cancel already recorded it.
-        remove_placeholder(&job_dir);
-        return;
-    }
 
     let (state, stats, error, final_frame) = match outcome {
         Outcome::Done(f) => {
@@ -849,6 +957,16 @@ fn run_job(
                 )),
             };
             (JobState::Succeeded, stats, None, Some(lf))
+        }
+        Outcome::Cancelled
+            if timed_out.load(Ordering::SeqCst) && !live.user_cancelled.load(Ordering::SeqCst) =>
+        {
+            let limit = inner.job_timeout.as_secs_f64();
+            let error = json!({
+                "code": "timeout",
+                "message": format!("the render ran longer than the server's limit of {limit} s (--job-timeout); its latest frame is kept"),
+            });
+            (JobState::Failed, None, Some(error), latest.take())
         }
         Outcome::Cancelled => {
             if !live.user_cancelled.load(Ordering::SeqCst) {
@@ -869,15 +987,25 @@ fn run_job(
     // layer's PNG (usually already encoded for the watchers), then the record. The other
     // layers and the EXR follow (`write_secondary_files`); until they are written the job
     // stays live, so `GET .../frame` serves any layer complete from memory meanwhile.
-    let mut has_frame = false;
-    if let Some(lf) = &final_frame {
-        match lf.image_png_blocking().and_then(|png| {
-            store::write_final_image_blocking(&job_dir, &png).map_err(|e| e.to_string())
-        }) {
-            Ok(()) => has_frame = true,
-            Err(e) => tracing::error!(%id, "cannot store the final frame: {e}"),
+    // A full or unwritable disk does not end the job in a state that lies: the image and
+    // then the record are tried again until they are stored (the job stays `running`,
+    // live, meanwhile), or the server stops and the restart runs the job again.
+    let png = final_frame.as_ref().map(|lf| lf.image_png_blocking());
+    let has_frame = match &png {
+        Some(Ok(png)) => {
+            if !inner.write_until_done("storing a final image", || {
+                store::write_final_image_blocking(&job_dir, png)
+            }) {
+                return;
+            }
+            true
         }
-    }
+        Some(Err(e)) => {
+            tracing::error!(%id, "cannot encode the final frame: {e}");
+            false
+        }
+        None => false,
+    };
     if !has_frame {
         remove_placeholder(&job_dir);
     }
@@ -885,17 +1013,23 @@ fn run_job(
         .as_ref()
         .map(|f| f.progress.clone())
         .or_else(|| job.progress.clone());
-    match inner.rt.block_on(inner.store.finish(
-        id,
-        state,
-        progress.as_ref(),
-        stats.as_ref(),
-        error.as_ref(),
-        has_frame,
-    )) {
-        Ok(finished) => job.finished_at = Some(finished),
-        Err(e) => tracing::error!(%id, "cannot record the end of the job: {e}"),
+    let mut finished = None;
+    if !inner.write_until_done("recording the end of a job", || {
+        inner
+            .rt
+            .block_on(inner.store.finish(
+                id,
+                state,
+                progress.as_ref(),
+                stats.as_ref(),
+                error.as_ref(),
+                has_frame,
+            ))
+            .map(|t| finished = Some(t))
+    }) {
+        return;
     }
+    job.finished_at = finished;
     tracing::info!(
         %id,
         state = state.as_str(),
@@ -936,22 +1070,16 @@ fn remove_placeholder(dir: &std::path::Path) {
 /// "no samples layer" while its image, state and statistics are intact.
 fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), String> {
     use rayon::prelude::*;
-    // The other layers' PNGs and the EXR, encoded in parallel.
-    let (pngs, exr) = rayon::join(
-        || {
-            layers::LAYERS
-                .par_iter()
-                .filter(|&&layer| layer != "image")
-                .map(|&layer| {
-                    let png = lf.encode_layer_blocking(layer)?;
-                    Ok(png.map(|p| (format!("{layer}.png"), p)))
-                })
-                .collect::<Result<Vec<_>, String>>()
-        },
-        || crate::raster::encode_exr(&lf.frame.image).map_err(|e| e.to_string()),
-    );
-    let mut files: Vec<(String, Vec<u8>)> = pngs?.into_iter().flatten().collect();
-    files.push(("image.exr".to_owned(), exr?));
+    // The other layers' PNGs and the EXR, encoded in parallel (or taken from the
+    // encodings a request already made).
+    let files = OTHER_ENCODINGS
+        .par_iter()
+        .map(|&(layer, exr)| {
+            let name = format!("{layer}.{}", if exr { "exr" } else { "png" });
+            Ok(lf.encoded_blocking(layer, exr)?.map(|b| (name, b)))
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    let files: Vec<(String, Bytes)> = files.into_iter().flatten().collect();
     store::write_files_blocking(dir, &files).map_err(|e| e.to_string())
 }
 
@@ -1083,6 +1211,7 @@ mod tests {
             crate::service::server_limits(),
             1,
             4,
+            DEFAULT_JOB_TIMEOUT,
             Arc::clone(&metrics),
             five_frames,
         )
@@ -1170,6 +1299,9 @@ mod tests {
             max_body_bytes: 1 << 20,
             request_deadline: super::super::http::REQUEST_DEADLINE,
             max_watchers: 4,
+            origin: Arc::default(),
+            uploads: Arc::new(tokio::sync::Semaphore::new(1024)),
+            upload_budget_kib: 1024,
         };
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
@@ -1224,6 +1356,7 @@ mod tests {
             crate::service::server_limits(),
             1,
             4,
+            DEFAULT_JOB_TIMEOUT,
             Arc::new(Metrics::default()),
             panicking,
         )

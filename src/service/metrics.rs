@@ -6,6 +6,7 @@ use super::jobs::Jobs;
 use super::store::JobState;
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
+use std::sync::Arc;
 
 #[derive(Debug, Default)]
 pub struct Metrics {
@@ -32,16 +33,16 @@ impl Metrics {
 }
 
 /// Decrements the watcher gauge when a stream ends, however it ends.
-pub struct WatcherGuard<'a>(&'a Metrics);
+pub struct WatcherGuard(Arc<Metrics>);
 
-impl<'a> WatcherGuard<'a> {
-    pub fn new(m: &'a Metrics) -> Self {
+impl WatcherGuard {
+    pub fn new(m: Arc<Metrics>) -> Self {
         m.ws_watchers.fetch_add(1, Ordering::Relaxed);
         Self(m)
     }
 }
 
-impl Drop for WatcherGuard<'_> {
+impl Drop for WatcherGuard {
     fn drop(&mut self) {
         self.0.ws_watchers.fetch_sub(1, Ordering::Relaxed);
     }

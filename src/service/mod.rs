@@ -16,6 +16,7 @@ pub mod examples;
 pub mod http;
 pub mod jobs;
 pub mod metrics;
+pub mod stall;
 pub mod store;
 pub mod viewer;
 pub mod ws;
@@ -48,6 +49,16 @@ pub struct Config {
     /// within `request_deadline` ([`http::REQUEST_DEADLINE`]); tests shorten them.
     pub header_timeout: Duration,
     pub request_deadline: Duration,
+    /// A response or stream whose client reads nothing for this long is cut
+    /// ([`stall::StallLimit`]); `--client-stall`.
+    pub client_stall: Duration,
+    /// A render running longer is stopped and its job failed (`timeout`); `--job-timeout`.
+    pub job_timeout: Duration,
+    /// Without a token, requests must name this server in `Host`: its listen address, a
+    /// loopback name, or one of these (`--allowed-host`); see `http::check_origin`.
+    pub allowed_hosts: Vec<String>,
+    /// Request bodies being read and validated at once, in bytes ([`VALIDATION_BUDGET`]).
+    pub validation_budget: usize,
 }
 
 impl Config {
@@ -64,6 +75,10 @@ impl Config {
             max_watchers: DEFAULT_MAX_WATCHERS,
             header_timeout: HEADER_TIMEOUT,
             request_deadline: http::REQUEST_DEADLINE,
+            client_stall: CLIENT_STALL,
+            job_timeout: jobs::DEFAULT_JOB_TIMEOUT,
+            allowed_hosts: Vec::new(),
+            validation_budget: VALIDATION_BUDGET,
         }
     }
 }
@@ -79,6 +94,16 @@ pub const DEFAULT_MAX_BODY_BYTES: usize = 8 << 20;
 /// header held its connection for good (measured: still open after 45 s), and enough of
 /// them exhaust the file descriptors ("slowloris").
 pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+/// Bytes of request bodies read and validated at once, all requests together. Validating
+/// a scene peaks at ~26× its body (an 8 MiB mesh: ~210 MB), so 24 MiB of bodies in flight
+/// is ~650 MB at most; further submissions wait for their turn before their body is read.
+/// Measured before: 48 concurrent 8 MiB submissions held 4.8 GB. A body larger than the
+/// budget (with `--max-body` raised beyond it) waits for the whole budget.
+pub const VALIDATION_BUDGET: usize = 24 << 20;
+/// 20 s without reading a byte: a live viewer on a poor link still takes something in
+/// that time (a 64 KiB fragment at 26 kbit/s); a client that has stopped reading is cut
+/// before it holds much (its frame, a file handle).
+pub const CLIENT_STALL: Duration = Duration::from_secs(20);
 /// How long shutdown waits for requests in flight before closing their connections.
 const DRAIN_ON_SHUTDOWN: Duration = Duration::from_secs(10);
 
@@ -124,6 +149,7 @@ pub async fn run(
         config.limits,
         config.workers,
         config.queue_capacity,
+        config.job_timeout,
         Arc::clone(&metrics),
     )
     .await
@@ -132,6 +158,11 @@ pub async fn run(
     let state = http::AppState {
         jobs: jobs.clone(),
         metrics,
+        origin: Arc::new(auth::OriginPolicy::new(&config.allowed_hosts)),
+        uploads: Arc::new(tokio::sync::Semaphore::new(
+            config.validation_budget.div_ceil(1024).max(1),
+        )),
+        upload_budget_kib: config.validation_budget.div_ceil(1024).max(1),
         token: config.token.filter(|t| !t.is_empty()).map(Arc::from),
         stop: stop.clone(),
         max_body_bytes: config.max_body_bytes,
@@ -144,7 +175,14 @@ pub async fn run(
         shutdown.await;
         stop2.cancel();
     });
-    serve(listener, app, &stop, config.header_timeout).await;
+    serve(
+        listener,
+        app,
+        &stop,
+        config.header_timeout,
+        config.client_stall,
+    )
+    .await;
     // Never leave workers rendering behind us.
     stop.cancel();
     jobs.shutdown().await;
@@ -164,6 +202,7 @@ async fn serve(
     app: axum::Router,
     stop: &tokio_util::sync::CancellationToken,
     header_timeout: Duration,
+    client_stall: Duration,
 ) {
     use hyper_util::rt::{TokioIo, TokioTimer};
     let mut http = hyper::server::conn::http1::Builder::new();
@@ -194,7 +233,10 @@ async fn serve(
         let _ = stream.set_nodelay(true);
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
         let conn = http
-            .serve_connection(TokioIo::new(stream), service)
+            .serve_connection(
+                TokioIo::new(stall::StallLimit::new(stream, client_stall)),
+                service,
+            )
             .with_upgrades();
         let stop = stop.clone();
         connections.spawn(async move {

@@ -103,21 +103,34 @@ const COLUMNS: &str =
 
 impl Row {
     fn into_record(self) -> Result<JobRecord, StoreError> {
-        let json = |s: Option<String>| -> Result<Option<serde_json::Value>, StoreError> {
-            s.map(|s| serde_json::from_str(&s).map_err(|e| StoreError::Corrupt(e.to_string())))
-                .transpose()
+        let id = Uuid::parse_str(&self.id).map_err(|e| {
+            StoreError::Corrupt(format!("job id {:?} is not a UUID: {e}", clip(&self.id)))
+        })?;
+        // A damaged JSON column loses that field (logged), not the job, nor every list
+        // that includes it.
+        let json = |column: &str, s: Option<String>| -> Option<serde_json::Value> {
+            let s = s?;
+            serde_json::from_str(&s)
+                .map_err(
+                    |e| tracing::warn!(%id, "the stored {column} is not JSON ({e}); shown as null"),
+                )
+                .ok()
         };
         Ok(JobRecord {
-            id: Uuid::parse_str(&self.id).map_err(|e| StoreError::Corrupt(e.to_string()))?,
-            state: JobState::parse(&self.state)
-                .ok_or_else(|| StoreError::Corrupt(format!("unknown state {:?}", self.state)))?,
+            id,
+            state: JobState::parse(&self.state).ok_or_else(|| {
+                StoreError::Corrupt(format!(
+                    "job {id} has the unknown state {:?}",
+                    clip(&self.state)
+                ))
+            })?,
+            progress: json("progress", self.progress),
+            stats: json("stats", self.stats),
+            error: json("error", self.error),
             name: self.name,
             created_at: self.created_at,
             started_at: self.started_at,
             finished_at: self.finished_at,
-            progress: json(self.progress)?,
-            stats: json(self.stats)?,
-            error: json(self.error)?,
             has_frame: self.has_frame != 0,
         })
     }
@@ -133,6 +146,16 @@ pub enum StoreError {
     Io(#[from] std::io::Error),
     #[error("corrupt record: {0}")]
     Corrupt(String),
+}
+
+/// At most 64 characters of `s` (with "…" when cut), for messages that quote stored or
+/// client-sent text.
+#[must_use]
+pub fn clip(s: &str) -> String {
+    match s.char_indices().nth(64) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_owned(),
+    }
 }
 
 /// The current time as RFC 3339 UTC (`2026-11-22T10:00:00.123Z`).
@@ -151,6 +174,33 @@ fn rfc3339_millis(t: time::OffsetDateTime) -> String {
     t.to_offset(time::UtcOffset::UTC)
         .format(FMT)
         .unwrap_or_default()
+}
+
+/// Starts of a job after which a crash during its render makes it a poison job (failed at
+/// the next start-up instead of run again): two, so that one unrelated crash (a power cut,
+/// an operator's kill) does not fail a good job.
+pub const MAX_ATTEMPTS: u32 = 2;
+
+/// Refuses a database that is not ours: one that has tables but never ran our migrations
+/// (a `glimpse.db` of some other program, or a data folder pointed at the wrong place).
+async fn refuse_foreign(pool: &SqlitePool) -> Result<(), StoreError> {
+    let tables: Vec<String> = sqlx::query_scalar(
+        "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite_%'",
+    )
+    .fetch_all(pool)
+    .await?;
+    if tables.is_empty() || tables.iter().any(|t| t == "_sqlx_migrations") {
+        return Ok(());
+    }
+    Err(StoreError::Corrupt(format!(
+        "glimpse.db is not a Glimpse job store (it holds the tables {}); use another --data folder",
+        tables
+            .iter()
+            .map(|t| format!("{:?}", clip(t)))
+            .take(5)
+            .collect::<Vec<_>>()
+            .join(", ")
+    )))
 }
 
 /// Names of the stored layer files; `image.exr` is the linear HDR image.
@@ -181,8 +231,21 @@ impl Store {
             .max_connections(4)
             .connect_with(opts)
             .await?;
+        refuse_foreign(&pool).await?;
         sqlx::migrate!("./migrations").run(&pool).await?;
         Ok(Self { pool, jobs_dir })
+    }
+
+    /// Marks a queued or running job's cancel request durably (before its `202`); false
+    /// if the job is not queued or running any more.
+    pub async fn request_cancel(&self, id: Uuid) -> Result<bool, StoreError> {
+        let r = sqlx::query(
+            "UPDATE jobs SET cancel_requested = 1 WHERE id = ? AND state IN ('queued', 'running')",
+        )
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
     }
 
     pub async fn close(&self) {
@@ -260,7 +323,16 @@ impl Store {
                 .await?
             }
         };
-        rows.into_iter().map(Row::into_record).collect()
+        // A row that cannot be read (a damaged id or state) is left out and logged, not
+        // a reason to answer no list at all.
+        Ok(rows
+            .into_iter()
+            .filter_map(|r| {
+                r.into_record()
+                    .map_err(|e| tracing::warn!("a stored job is left out of a list: {e}"))
+                    .ok()
+            })
+            .collect())
     }
 
     pub async fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
@@ -280,11 +352,12 @@ impl Store {
         Ok(self.mark_running_at(id, &started).await?.then_some(started))
     }
 
-    /// [`Self::mark_running`] with the start time given (the worker publishes it before
-    /// this commit lands); false if the job was no longer queued.
+    /// [`Self::mark_running`] with the start time given, counting the attempt (committed
+    /// before the render starts: see [`MAX_ATTEMPTS`]); false if the job was no longer
+    /// queued.
     pub async fn mark_running_at(&self, id: Uuid, started: &str) -> Result<bool, StoreError> {
         let r = sqlx::query(
-            "UPDATE jobs SET state = 'running', started_at = ?, progress = NULL WHERE id = ? AND state = 'queued'",
+            "UPDATE jobs SET state = 'running', started_at = ?, progress = NULL, attempts = attempts + 1 WHERE id = ? AND state = 'queued'",
         )
         .bind(started)
         .bind(id.to_string())
@@ -331,10 +404,11 @@ impl Store {
         Ok(finished)
     }
 
-    /// running → queued (graceful shutdown: the job runs again from the start next time).
+    /// running → queued (graceful shutdown: the job runs again from the start next time;
+    /// the interrupted attempt does not count against it).
     pub async fn requeue(&self, id: Uuid) -> Result<(), StoreError> {
         sqlx::query(
-            "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL WHERE id = ? AND state = 'running'",
+            "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL, attempts = MAX(attempts - 1, 0) WHERE id = ? AND state = 'running'",
         )
         .bind(id.to_string())
         .execute(&self.pool)
@@ -342,9 +416,34 @@ impl Store {
         Ok(())
     }
 
-    /// Start-up recovery: `running` jobs were interrupted by a crash and go back to
-    /// `queued`; returns every queued id, oldest first, to be enqueued again.
+    /// Start-up recovery. A job found `running` was interrupted by a crash: if a cancel
+    /// was acknowledged for it, it ends `cancelled`; if this was its [`MAX_ATTEMPTS`]th
+    /// start, it ends `failed` (a poison job: each run took the server down); otherwise
+    /// it goes back to `queued`. Queued jobs with an acknowledged cancel end `cancelled`.
+    /// Returns every queued id, oldest first, to be enqueued again; a row whose id is not
+    /// a UUID is failed and named in the log, not a reason to refuse to start.
     pub async fn recover(&self) -> Result<Vec<Uuid>, StoreError> {
+        let now = now_rfc3339();
+        sqlx::query("UPDATE jobs SET state = 'cancelled', finished_at = ? WHERE state IN ('queued', 'running') AND cancel_requested = 1")
+            .bind(&now)
+            .execute(&self.pool)
+            .await?;
+        let poison = serde_json::json!({
+            "code": "poison",
+            "message": format!("the server stopped {MAX_ATTEMPTS} times while rendering this job (a crash or a kill); it is not run again"),
+        });
+        let failed = sqlx::query("UPDATE jobs SET state = 'failed', finished_at = ?, error = ? WHERE state = 'running' AND attempts >= ?")
+            .bind(&now)
+            .bind(poison.to_string())
+            .bind(i64::from(MAX_ATTEMPTS))
+            .execute(&self.pool)
+            .await?;
+        if failed.rows_affected() > 0 {
+            tracing::error!(
+                count = failed.rows_affected(),
+                "poison jobs failed: each of their last {MAX_ATTEMPTS} runs ended with the server"
+            );
+        }
         sqlx::query("UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL WHERE state = 'running'")
             .execute(&self.pool)
             .await?;
@@ -352,20 +451,33 @@ impl Store {
             sqlx::query_scalar("SELECT id FROM jobs WHERE state = 'queued' ORDER BY id ASC")
                 .fetch_all(&self.pool)
                 .await?;
-        ids.iter()
-            .map(|s| Uuid::parse_str(s).map_err(|e| StoreError::Corrupt(e.to_string())))
-            .collect()
+        let mut queued = Vec::with_capacity(ids.len());
+        for raw in ids {
+            match Uuid::parse_str(&raw) {
+                Ok(id) => queued.push(id),
+                Err(e) => {
+                    tracing::error!(
+                        "stored job {:?} has no valid id ({e}); marked failed",
+                        clip(&raw)
+                    );
+                    sqlx::query("UPDATE jobs SET state = 'failed', finished_at = ? WHERE id = ?")
+                        .bind(&now)
+                        .bind(&raw)
+                        .execute(&self.pool)
+                        .await?;
+                }
+            }
+        }
+        Ok(queued)
     }
 
     /// Removes a finished job and its images; false if it does not exist or is not finished.
+    /// The files go first: on a full disk that frees the space the record's deletion needs
+    /// (a record left without its files answers 404 for its frames, and a second DELETE
+    /// removes it).
     pub async fn delete_finished(&self, id: Uuid) -> Result<bool, StoreError> {
-        let r = sqlx::query(
-            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
-        )
-        .bind(id.to_string())
-        .execute(&self.pool)
-        .await?;
-        if r.rows_affected() == 0 {
+        let finished = self.get(id).await?.is_some_and(|j| j.state.is_finished());
+        if !finished {
             return Ok(false);
         }
         let dir = self.job_dir(id);
@@ -374,7 +486,13 @@ impl Store {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => return Err(e.into()),
         }
-        Ok(true)
+        let r = sqlx::query(
+            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
+        )
+        .bind(id.to_string())
+        .execute(&self.pool)
+        .await?;
+        Ok(r.rows_affected() == 1)
     }
 
     /// Path of a stored layer (`image`, ...) as PNG, or of the EXR image.
@@ -437,7 +555,10 @@ pub fn write_final_image_blocking(dir: &Path, png: &[u8]) -> std::io::Result<()>
 
 /// Writes `files` (name, bytes) into `dir` atomically (temp file + rename), synchronously:
 /// called from worker threads, never from the async runtime.
-pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io::Result<()> {
+pub fn write_files_blocking<B: AsRef<[u8]> + Sync>(
+    dir: &Path,
+    files: &[(String, B)],
+) -> std::io::Result<()> {
     use rayon::prelude::*;
     use std::io::Write;
     if !dir.exists() {
@@ -455,7 +576,7 @@ pub fn write_files_blocking(dir: &Path, files: &[(String, Vec<u8>)]) -> std::io:
     files.par_iter().try_for_each(|(name, bytes)| {
         let tmp = dir.join(format!(".{name}.tmp"));
         let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
+        f.write_all(bytes.as_ref())?;
         f.sync_all()
     })?;
     for (name, _) in files {

@@ -11,45 +11,97 @@
 //! a slow client skips frames instead of making the server buffer them; a late joiner
 //! starts from the newest frame. A finished job (no longer live) is served from the
 //! store: state, the stored final frame, done.
+//!
+//! Memory per watcher is bounded, whatever the image size: a frame's PNG is shared by
+//! every watcher (one `Bytes`), and goes out as a binary message in fragments of
+//! [`FRAGMENT`] bytes (RFC 6455 §5.4). The WebSocket library copies each frame it sends
+//! into the connection's write buffer, so one unfragmented 4096² PNG (tens of MB) per
+//! watcher that does not read was a copy per watcher (measured: 256 such watchers held
+//! +5.2 GB). A watcher holds no reference to a job's frames while it waits for its
+//! client; a client that stops reading is cut by the connection's stall limit
+//! (`service::stall`). That is why the upgrade is done here with tokio-tungstenite
+//! rather than through axum's `WebSocketUpgrade`, whose messages cannot be fragmented.
 
 use super::http::{ApiError, AppState, ErrorCode, JobId};
 use super::jobs::{LiveFrame, Snapshot};
 use super::metrics::WatcherGuard;
 use super::store::{JobRecord, JobState};
-use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
-use axum::extract::State;
+use axum::extract::{Request, State};
+use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::Response;
+use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
+use hyper_util::rt::TokioIo;
 use serde_json::{json, Value};
-use std::sync::Arc;
-use std::time::Duration;
+use std::sync::{Arc, Weak};
+use tokio_tungstenite::tungstenite::protocol::frame::coding::{CloseCode, Data, OpCode};
+use tokio_tungstenite::tungstenite::protocol::frame::Frame;
+use tokio_tungstenite::tungstenite::protocol::{CloseFrame, Role, WebSocketConfig};
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::WebSocketStream;
 use uuid::Uuid;
 
-/// A client that does not take a message within this time is dropped (it would otherwise
-/// hold a connection and a frame alive forever).
-const SEND_TIMEOUT: Duration = Duration::from_secs(30);
-
 /// Largest message (and frame) a client may send on a stream. Clients only need control
-/// frames (ping, close: ≤ 125 bytes) and whatever they send is read and dropped, but axum's
-/// default would buffer up to 64 MiB per message: 256 watchers could make the server hold
-/// 16 GiB. A larger message ends that stream.
+/// frames (ping, close: ≤ 125 bytes) and whatever they send is read and dropped; a
+/// larger message ends that stream (without a bound, 256 watchers could make the server
+/// buffer gigabytes).
 pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+
+/// Size of the fragments a frame's PNG is sent in: the most a watcher's write buffer
+/// holds of it.
+pub const FRAGMENT: usize = 16 * 1024;
+
+type Ws = WebSocketStream<TokioIo<hyper::upgrade::Upgraded>>;
+type Tx = SplitSink<Ws, Message>;
+
+/// The upgrade request's `Sec-WebSocket-Key`, or why this is not a WebSocket request
+/// (RFC 6455 §4.2.1).
+fn websocket_key(headers: &HeaderMap) -> Result<String, &'static str> {
+    let has_token = |name: header::HeaderName, token: &str| {
+        headers.get_all(name).iter().any(|v| {
+            v.to_str()
+                .is_ok_and(|v| v.split(',').any(|t| t.trim().eq_ignore_ascii_case(token)))
+        })
+    };
+    if !has_token(header::CONNECTION, "upgrade") {
+        return Err("`Connection: upgrade` is missing");
+    }
+    if !has_token(header::UPGRADE, "websocket") {
+        return Err("`Upgrade: websocket` is missing");
+    }
+    if headers
+        .get(header::SEC_WEBSOCKET_VERSION)
+        .is_none_or(|v| v.as_bytes() != b"13")
+    {
+        return Err("`Sec-WebSocket-Version: 13` is missing");
+    }
+    headers
+        .get(header::SEC_WEBSOCKET_KEY)
+        .and_then(|v| v.to_str().ok())
+        .map(str::to_owned)
+        .ok_or("`Sec-WebSocket-Key` is missing")
+}
 
 pub async fn stream(
     State(st): State<AppState>,
     JobId(id): JobId,
-    ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
+    mut req: Request,
 ) -> Result<Response, ApiError> {
     if st.jobs.get(id).await?.is_none() {
         return Err(ApiError::not_found_job(&id.to_string()));
     }
-    let ws = ws.map_err(|e| {
+    let not_ws = |why: &str| {
         ApiError::new(
             ErrorCode::InvalidParameter,
-            format!("this route is a WebSocket: {}", e.body_text()),
+            format!("this route is a WebSocket: {why}"),
         )
-    })?;
+    };
+    let key = websocket_key(req.headers()).map_err(not_ws)?;
+    let on_upgrade = req
+        .extensions_mut()
+        .remove::<hyper::upgrade::OnUpgrade>()
+        .ok_or_else(|| not_ws("this connection cannot be upgraded"))?;
     let watching = st
         .metrics
         .ws_watchers
@@ -62,74 +114,103 @@ pub async fn stream(
         e.retry_after_s = Some(5);
         return Err(e);
     }
-    let ws = ws
-        .max_message_size(MAX_CLIENT_MESSAGE)
-        .max_frame_size(MAX_CLIENT_MESSAGE);
-    Ok(ws.on_upgrade(move |socket| async move {
-        let _guard = WatcherGuard::new(&st.metrics);
-        let (mut tx, mut rx) = socket.split();
-        // Read (and ignore) what the client sends, so pings are answered and a close is
-        // noticed; its end tells the writer to stop.
-        let closed = tokio_util::sync::CancellationToken::new();
-        let closed2 = closed.clone();
-        let reader = tokio::spawn(async move {
-            while let Some(Ok(m)) = rx.next().await {
-                if matches!(m, Message::Close(_)) {
-                    break;
-                }
-            }
-            closed2.cancel();
-        });
-        tokio::select! {
-            r = serve(&mut tx, &st, id) => {
-                if let Err(e) = r {
-                    tracing::debug!(%id, "stream ended: {e}");
-                }
-            }
-            () = closed.cancelled() => {}
-            () = st.stop.cancelled() => {
-                let _ = tx.send(Message::Close(Some(CloseFrame {
-                    code: axum::extract::ws::close_code::AWAY,
-                    reason: "server shutting down".into(),
-                }))).await;
-            }
+    let guard = WatcherGuard::new(Arc::clone(&st.metrics));
+    tokio::spawn(async move {
+        let _guard = guard;
+        match on_upgrade.await {
+            Ok(upgraded) => watch(upgraded, st, id).await,
+            Err(e) => tracing::debug!(%id, "stream upgrade failed: {e}"),
         }
-        let _ = tx.close().await;
-        reader.abort();
-    }))
+    });
+    let accept = tokio_tungstenite::tungstenite::handshake::derive_accept_key(key.as_bytes());
+    Response::builder()
+        .status(StatusCode::SWITCHING_PROTOCOLS)
+        .header(header::CONNECTION, "upgrade")
+        .header(header::UPGRADE, "websocket")
+        .header(header::SEC_WEBSOCKET_ACCEPT, accept)
+        .body(axum::body::Body::empty())
+        .map_err(|e| ApiError::internal("answering a stream's upgrade", &e))
 }
 
-type Tx = SplitSink<WebSocket, Message>;
+/// One watcher's connection, from the upgrade to the close.
+async fn watch(upgraded: hyper::upgrade::Upgraded, st: AppState, id: Uuid) {
+    // Small buffers: 256 watchers × the library's default 128 KiB to read and 128 KiB to
+    // write would be 64 MiB before any frame. Writes go out frame by frame.
+    let config = WebSocketConfig::default()
+        .read_buffer_size(4096)
+        .write_buffer_size(0)
+        .max_message_size(Some(MAX_CLIENT_MESSAGE))
+        .max_frame_size(Some(MAX_CLIENT_MESSAGE));
+    let socket = Ws::from_raw_socket(TokioIo::new(upgraded), Role::Server, Some(config)).await;
+    let (mut tx, mut rx) = socket.split();
+    // Read (and ignore) what the client sends, so pings are answered and a close is
+    // noticed; its end tells the writer to stop.
+    let closed = tokio_util::sync::CancellationToken::new();
+    let closed2 = closed.clone();
+    let reader = tokio::spawn(async move {
+        while let Some(Ok(m)) = rx.next().await {
+            if matches!(m, Message::Close(_)) {
+                break;
+            }
+        }
+        closed2.cancel();
+    });
+    tokio::select! {
+        r = serve(&mut tx, &st, id) => {
+            if let Err(e) = r {
+                tracing::debug!(%id, "stream ended: {e}");
+            }
+        }
+        () = closed.cancelled() => {}
+        () = st.stop.cancelled() => {
+            let _ = tx.send(Message::Close(Some(CloseFrame {
+                code: CloseCode::Away,
+                reason: "server shutting down".into(),
+            }))).await;
+        }
+    }
+    let _ = tx.close().await;
+    reader.abort();
+}
 
 #[derive(Debug, thiserror::Error)]
 enum StreamError {
     #[error("send: {0}")]
-    Send(#[from] axum::Error),
-    #[error("client too slow")]
-    Timeout,
+    Send(#[from] tokio_tungstenite::tungstenite::Error),
     #[error("{0}")]
     Other(String),
 }
 
-async fn send(tx: &mut Tx, m: Message) -> Result<(), StreamError> {
-    tokio::time::timeout(SEND_TIMEOUT, tx.send(m))
-        .await
-        .map_err(|_| StreamError::Timeout)??;
+async fn send_json(tx: &mut Tx, v: &Value) -> Result<(), StreamError> {
+    tx.send(Message::Text(v.to_string().into())).await?;
     Ok(())
 }
 
-async fn send_json(tx: &mut Tx, v: &Value) -> Result<(), StreamError> {
-    send(tx, Message::Text(v.to_string().into())).await
+/// One binary message in fragments of [`FRAGMENT`] bytes, each a slice of `data` (no
+/// copy until the library frames it).
+async fn send_binary(tx: &mut Tx, data: Bytes) -> Result<(), StreamError> {
+    let n = data.len().div_ceil(FRAGMENT).max(1);
+    for k in 0..n {
+        let part = data.slice((k * FRAGMENT).min(data.len())..((k + 1) * FRAGMENT).min(data.len()));
+        let opcode = if k == 0 {
+            OpCode::Data(Data::Binary)
+        } else {
+            OpCode::Data(Data::Continue)
+        };
+        tx.send(Message::Frame(Frame::message(part, opcode, k + 1 == n)))
+            .await?;
+    }
+    Ok(())
 }
 
-async fn send_frame(tx: &mut Tx, lf: &Arc<LiveFrame>) -> Result<(), StreamError> {
+/// A frame's header message and PNG. Only the PNG's bytes are held while the client
+/// takes them, not the frame (whose buffers are ~240 bytes a pixel).
+async fn send_frame(tx: &mut Tx, lf: Arc<LiveFrame>) -> Result<(), StreamError> {
     let png = lf.image_png().await.map_err(StreamError::Other)?;
-    send_json(
-        tx,
-        &json!({"type": "frame", "iteration": lf.frame.iteration, "progress": lf.progress, "layers": lf.layers}),
-    )
-    .await?;
-    send(tx, Message::Binary(png)).await
+    let header = json!({"type": "frame", "iteration": lf.frame.iteration, "progress": lf.progress, "layers": lf.layers});
+    drop(lf);
+    send_json(tx, &header).await?;
+    send_binary(tx, png).await
 }
 
 /// The last message for a finished job.
@@ -154,18 +235,25 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
     if let Some(live) = st.jobs.live(id) {
         let mut wrx = live.tx.subscribe();
         drop(live); // do not keep the job alive; the receiver is enough
-        let mut snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
+        let snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
         send_json(tx, &json!({"type": "state", "job": snap.job})).await?;
-        let mut sent: Option<Arc<LiveFrame>> = None;
-        loop {
-            if let Some(f) = &snap.frame {
-                if !sent.as_ref().is_some_and(|s| Arc::ptr_eq(s, f)) {
-                    send_frame(tx, f).await?;
-                    sent = Some(Arc::clone(f));
-                }
+        let mut snap = Some(snap);
+        // The frame last sent, by identity only: holding it would keep its buffers alive
+        // while this client is slow.
+        let mut sent: Weak<LiveFrame> = Weak::new();
+        while let Some(s) = snap.take() {
+            let finished = s.job.state.is_finished().then(|| final_message(&s.job));
+            let fresh = s
+                .frame
+                .clone()
+                .filter(|f| !Weak::ptr_eq(&sent, &Arc::downgrade(f)));
+            drop(s);
+            if let Some(f) = fresh {
+                sent = Arc::downgrade(&f);
+                send_frame(tx, f).await?;
             }
-            if snap.job.state.is_finished() {
-                send_json(tx, &final_message(&snap.job)).await?;
+            if let Some(done) = finished {
+                send_json(tx, &done).await?;
                 return Ok(());
             }
             if wrx.changed().await.is_err() {
@@ -173,7 +261,7 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
                 // shutdown, or deleted): say where it stands and stop.
                 break;
             }
-            snap = wrx.borrow_and_update().clone();
+            snap = Some(wrx.borrow_and_update().clone());
         }
         if let Some(job) = st
             .jobs
@@ -203,35 +291,67 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
     };
     send_json(tx, &json!({"type": "state", "job": job})).await?;
     if job.has_frame {
-        if let Some(path) = st.jobs.store().layer_path(id, "image", false) {
-            if let Ok(png) = tokio::fs::read(&path).await {
-                let iteration = job
-                    .progress
-                    .as_ref()
-                    .and_then(|p| p.get("iteration"))
-                    .cloned()
-                    .unwrap_or(json!(0));
-                let layers: Vec<&str> = super::store::LAYER_FILES
-                    .iter()
-                    .copied()
-                    .filter(|l| {
-                        st.jobs
-                            .store()
-                            .layer_path(id, l, false)
-                            .is_some_and(|p| p.exists())
-                    })
-                    .collect();
-                send_json(
-                    tx,
-                    &json!({"type": "frame", "iteration": iteration, "progress": job.progress, "layers": layers}),
-                )
-                .await?;
-                send(tx, Message::Binary(png.into())).await?;
-            }
-        }
+        send_stored_frame(tx, st, &job).await?;
     }
     if job.state.is_finished() {
         send_json(tx, &final_message(&job)).await?;
     }
     Ok(())
+}
+
+/// The stored final frame of a finished job, read from its file fragment by fragment
+/// (never the whole file in memory per watcher). Nothing if the file is gone.
+async fn send_stored_frame(tx: &mut Tx, st: &AppState, job: &JobRecord) -> Result<(), StreamError> {
+    use tokio::io::AsyncReadExt;
+    let store = st.jobs.store();
+    let Some(path) = store.layer_path(job.id, "image", false) else {
+        return Ok(());
+    };
+    let Ok(mut file) = tokio::fs::File::open(&path).await else {
+        return Ok(());
+    };
+    let len = file.metadata().await.map(|m| m.len()).unwrap_or(0);
+    let iteration = job
+        .progress
+        .as_ref()
+        .and_then(|p| p.get("iteration"))
+        .cloned()
+        .unwrap_or(json!(0));
+    let layers: Vec<&str> = super::store::LAYER_FILES
+        .iter()
+        .copied()
+        .filter(|l| {
+            store
+                .layer_path(job.id, l, false)
+                .is_some_and(|p| p.exists())
+        })
+        .collect();
+    send_json(
+        tx,
+        &json!({"type": "frame", "iteration": iteration, "progress": job.progress, "layers": layers}),
+    )
+    .await?;
+    // Fragments of exactly the length the file had: a message's size is fixed once its
+    // first fragment is out.
+    let mut left = len;
+    let mut first = true;
+    loop {
+        let want = usize::try_from(left.min(FRAGMENT as u64)).unwrap_or(FRAGMENT);
+        let mut buf = vec![0u8; want];
+        file.read_exact(&mut buf)
+            .await
+            .map_err(|e| StreamError::Other(format!("reading the stored frame: {e}")))?;
+        left -= want as u64;
+        let opcode = if first {
+            OpCode::Data(Data::Binary)
+        } else {
+            OpCode::Data(Data::Continue)
+        };
+        first = false;
+        tx.send(Message::Frame(Frame::message(buf, opcode, left == 0)))
+            .await?;
+        if left == 0 {
+            return Ok(());
+        }
+    }
 }

@@ -145,10 +145,12 @@ pub fn trace_estimates(
     per_pixel(pixels, cancel, |p| oracle.estimate(p))
 }
 
-/// `f` over `pixels` in parallel batches of at most [`BATCH`], checking `cancel` between
-/// them. A short list (the progressive loop's first sample set and late iterations: a few
-/// hundred pixels) is cut into at least 8 batches per thread, so no thread idles while
-/// another finishes a whole 256-pixel batch.
+/// `f` over `pixels` in parallel batches of at most [`BATCH`], checking `cancel` before
+/// every pixel (one relaxed load; a batch of costly pixels, such as rays through a mesh
+/// of near-duplicate triangles, took over a second to notice a cancel). A short list (the
+/// progressive loop's first sample set and late iterations: a few hundred pixels) is cut
+/// into at least 8 batches per thread, so no thread idles while another finishes a whole
+/// 256-pixel batch.
 fn per_pixel<T: Send + Clone + Default>(
     pixels: &[PixelCoord],
     cancel: &CancelToken,
@@ -159,10 +161,10 @@ fn per_pixel<T: Send + Clone + Default>(
     out.par_chunks_mut(batch)
         .zip(pixels.par_chunks(batch))
         .try_for_each(|(o, p)| {
-            if cancel.is_cancelled() {
-                return Err(Cancelled);
-            }
             for (dst, &px) in o.iter_mut().zip(p) {
+                if cancel.is_cancelled() {
+                    return Err(Cancelled);
+                }
                 *dst = f(px);
             }
             Ok(())
@@ -194,10 +196,11 @@ pub fn render_reference_with(
     data.par_chunks_mut(BATCH)
         .enumerate()
         .try_for_each(|(c, chunk)| {
-            if cancel.is_cancelled() {
-                return Err(Cancelled);
-            }
             for (k, dst) in chunk.iter_mut().enumerate() {
+                // Per pixel, as in `per_pixel`: a cancel is seen within one pixel's time.
+                if cancel.is_cancelled() {
+                    return Err(Cancelled);
+                }
                 let i = c * BATCH + k;
                 let p = PixelCoord::new((i % w as usize) as u32, (i / w as usize) as u32);
                 *dst = match samples_seed {
