@@ -256,6 +256,13 @@ impl PathTracer {
                     albedo,
                     alpha: (roughness * roughness).max(material::MIN_ALPHA),
                 }),
+                Material::Conductor { eta, k, roughness } => {
+                    ResolvedMaterial::Fixed(Bsdf::Conductor {
+                        eta,
+                        k,
+                        alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                    })
+                }
                 Material::Mirror { reflectance } => {
                     ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
                 }
@@ -281,7 +288,9 @@ impl PathTracer {
             }),
             has_environment: lights.env_radiance.is_some(),
             has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
-            has_glossy: used(&|m| matches!(m, Material::Glossy { .. })),
+            has_glossy: used(&|m| {
+                matches!(m, Material::Glossy { .. } | Material::Conductor { .. })
+            }),
             has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
             has_texture: used(&|m| {
                 matches!(
