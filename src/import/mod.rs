@@ -4,12 +4,14 @@
 //! statistics and the service therefore see an imported scene exactly like a document,
 //! and `glimpse convert` writes the document an import produced.
 //!
+//! - [`gltf`]: glTF 2.0 (`.gltf`, `.glb`), errors at JSON pointers;
 //! - [`pbrt`]: the pbrt-v4 subset (own tokenizer and parser, errors at file:line:column);
 //! - [`ply`]: the PLY meshes pbrt scenes name.
 //!
 //! Files a scene names are read through a [`FileSource`], which confines every name to the
 //! scene's folder: an import never reads a file outside it.
 
+pub mod gltf;
 pub mod pbrt;
 pub mod ply;
 pub mod texture;
@@ -71,6 +73,8 @@ pub enum Format {
     /// Glimpse's own scene document.
     Json,
     Pbrt,
+    /// `.gltf` or `.glb` (told apart by the GLB magic).
+    Gltf,
 }
 
 impl Format {
@@ -84,8 +88,9 @@ impl Format {
         match ext.as_str() {
             "json" => Ok(Format::Json),
             "pbrt" => Ok(Format::Pbrt),
+            "gltf" | "glb" => Ok(Format::Gltf),
             other => Err(format!(
-                "unknown scene format `.{other}`; Glimpse reads .json and .pbrt"
+                "unknown scene format `.{other}`; Glimpse reads .json, .pbrt, .gltf and .glb"
             )),
         }
     }
@@ -171,6 +176,7 @@ pub fn import(
                 .map_err(|e| ImportError::invalid(name, format!("not UTF-8 text: {e}")))?;
             pbrt::import(name, text, files, limits)?
         }
+        Format::Gltf => gltf::import(name, bytes, files, limits)?,
     };
     supply_missing(&mut imported);
     Ok(imported)

@@ -103,13 +103,16 @@ impl Default for DisplayDoc {
     }
 }
 
-/// Materials (`"type"`: diffuse, glossy, conductor, mirror, dielectric, emissive).
+/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, mirror,
+/// dielectric, emissive).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum MaterialDoc {
     Diffuse(DiffuseDoc),
     Glossy(GlossyDoc),
     Conductor(ConductorDoc),
+    #[serde(rename = "metallic_roughness")]
+    MetallicRoughness(MetallicRoughnessDoc),
     Mirror(MirrorDoc),
     Dielectric(DielectricDoc),
     Emissive(EmissiveDoc),
@@ -139,6 +142,16 @@ pub struct GlossyDoc {
 pub struct ConductorDoc {
     pub eta: V3,
     pub k: V3,
+    pub roughness: f32,
+}
+
+/// glTF 2.0's metallic-roughness material (our extension for imported scenes):
+/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MetallicRoughnessDoc {
+    pub base_color: V3,
+    pub metallic: f32,
     pub roughness: f32,
 }
 
@@ -466,6 +479,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "diffuse",
             "glossy",
             "conductor",
+            "metallic_roughness",
             "mirror",
             "dielectric",
             "emissive",
@@ -475,6 +489,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "diffuse" => variant(rest).map(MaterialDoc::Diffuse),
             "glossy" => variant(rest).map(MaterialDoc::Glossy),
             "conductor" => variant(rest).map(MaterialDoc::Conductor),
+            "metallic_roughness" => variant(rest).map(MaterialDoc::MetallicRoughness),
             "mirror" => variant(rest).map(MaterialDoc::Mirror),
             "dielectric" => variant(rest).map(MaterialDoc::Dielectric),
             _ => variant(rest).map(MaterialDoc::Emissive),

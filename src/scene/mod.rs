@@ -106,6 +106,12 @@ pub enum Material {
         k: Vec3,
         roughness: f32,
     },
+    /// glTF 2.0 metallic-roughness (glTF spec Appendix B).
+    MetallicRoughness {
+        base_color: Vec3,
+        metallic: f32,
+        roughness: f32,
+    },
     Mirror {
         reflectance: Vec3,
     },

@@ -799,6 +799,16 @@ fn check_materials(
                     roughness: c.roughness,
                 }
             }
+            MaterialDoc::MetallicRoughness(m) => {
+                let base_color = cx.colour01(&format!("{p}.base_color"), m.base_color);
+                cx.in_unit(&format!("{p}.metallic"), m.metallic);
+                cx.in_unit(&format!("{p}.roughness"), m.roughness);
+                Material::MetallicRoughness {
+                    base_color,
+                    metallic: m.metallic,
+                    roughness: m.roughness,
+                }
+            }
             MaterialDoc::Mirror(r) => Material::Mirror {
                 reflectance: cx.colour01(&format!("{p}.reflectance"), r.reflectance),
             },

@@ -10,6 +10,11 @@
 //! - `conductor`: the same GGX lobe weighted by the exact Fresnel reflectance of a metal
 //!   with complex index η + ik per RGB channel (pbrt-v4 `ConductorBxDF`, `FrComplex`), so
 //!   its colour and its brightening toward grazing angles come from the metal's constants.
+//! - `metallic_roughness`: glTF 2.0's material (glTF spec Appendix B): a dielectric part
+//!   mixing Lambert and GGX by Schlick's Fresnel with F0 = 0.04, and a metal part whose
+//!   GGX lobe is tinted by Schlick's Fresnel from F0 = base colour, mixed by `metallic`.
+//!   Sampled by choosing the GGX lobe (visible normals) or the cosine lobe, with the
+//!   one-sample mixture pdf.
 //! - `mirror`: perfect specular reflection scaled by `reflectance`.
 //! - `dielectric`: smooth interface with exact Fresnel; `tint` scales transmission only.
 //! - `emissive`: emits (light.rs) and reflects nothing.
@@ -35,6 +40,12 @@ pub enum Bsdf {
     Conductor {
         eta: Vec3,
         k: Vec3,
+        alpha: f32,
+    },
+    /// glTF metallic-roughness (Appendix B).
+    MetalRough {
+        base: Vec3,
+        metallic: f32,
         alpha: f32,
     },
     Mirror {
@@ -103,6 +114,11 @@ impl Bsdf {
                 let f = fresnel_conductor(wo.dot(h), eta, k);
                 (f * (d * g2 / (4.0 * wo.z)), g1o * d / (4.0 * wo.z))
             }
+            Bsdf::MetalRough {
+                base,
+                metallic,
+                alpha,
+            } => metal_rough_eval(base, metallic, alpha, wo, wi),
             _ => (Vec3::ZERO, 0.0),
         }
     }
@@ -164,6 +180,28 @@ impl Bsdf {
                     wi,
                     weight: f * (g2 / g1o),
                     pdf: g1o * ggx_d(h, alpha) / (4.0 * wo.z),
+                    delta: false,
+                })
+            }
+            Bsdf::MetalRough {
+                metallic, alpha, ..
+            } => {
+                if wo.z <= 0.0 {
+                    return None;
+                }
+                let wi = if uc < metal_rough_spec_prob(metallic) {
+                    reflect(wo, sample_ggx_vndf(wo, alpha, u))
+                } else {
+                    cosine_hemisphere(u)
+                };
+                if wi.z <= 0.0 {
+                    return None;
+                }
+                let (f_cos, pdf) = self.eval(wo, wi);
+                (pdf > 0.0).then(|| BsdfSample {
+                    wi,
+                    weight: f_cos / pdf,
+                    pdf,
                     delta: false,
                 })
             }
@@ -235,6 +273,39 @@ pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
     let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
     let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
     (0.5 * (rs * rs + rp * rp)).clamp(0.0, 1.0)
+}
+
+/// Probability of sampling the GGX lobe of a metallic-roughness material: always for a
+/// metal (it has no diffuse part), half the time for a dielectric.
+#[inline]
+fn metal_rough_spec_prob(metallic: f32) -> f32 {
+    0.5 + 0.5 * metallic
+}
+
+/// f·cos θi and the mixture pdf of glTF's metallic-roughness BRDF (glTF 2.0 Appendix B,
+/// "Complete Model"), for wo.z, wi.z > 0.
+#[inline]
+fn metal_rough_eval(base: Vec3, metallic: f32, alpha: f32, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+    let h = (wo + wi).normalize_or_zero();
+    if h == Vec3::ZERO {
+        return (Vec3::ZERO, 0.0);
+    }
+    let fw = (1.0 - wo.dot(h).clamp(0.0, 1.0)).powi(5);
+    let d = ggx_d(h, alpha);
+    let lo = ggx_lambda(wo, alpha);
+    let g2 = 1.0 / (1.0 + lo + ggx_lambda(wi, alpha));
+    // specular_brdf · cos θi = D G2 / (4 cos θo).
+    let spec_cos = d * g2 / (4.0 * wo.z);
+    let f_dielectric = 0.04 + 0.96 * fw;
+    let f_metal = base + (Vec3::ONE - base) * fw;
+    let dielectric =
+        base * ((1.0 - f_dielectric) * wi.z * FRAC_1_PI) + Vec3::splat(f_dielectric * spec_cos);
+    let metal = f_metal * spec_cos;
+    let f_cos = dielectric * (1.0 - metallic) + metal * metallic;
+    let ps = metal_rough_spec_prob(metallic);
+    let pdf_spec = d / (4.0 * wo.z * (1.0 + lo));
+    let pdf = ps * pdf_spec + (1.0 - ps) * wi.z * FRAC_1_PI;
+    (f_cos, pdf)
 }
 
 /// Fresnel reflectance of a conductor with complex index `eta + i·k` (per RGB channel)
@@ -527,6 +598,45 @@ mod tests {
         // A narrow lobe reflects about F(θo) (copper: red ≫ blue).
         assert!((mean - f0).abs().max_element() < 0.03, "{mean} vs {f0}");
         assert!(mean.x > mean.z);
+    }
+
+    /// glTF metallic-roughness: sampling agrees with evaluation, a white dielectric keeps
+    /// at most all the energy, and a rough dielectric seen head-on reflects about its
+    /// base colour (Lambert weighted by 1 − F, F ≈ 0.04 there, plus the specular part).
+    #[test]
+    fn metal_rough_sample_matches_eval_and_conserves_energy() {
+        for (base, metallic, rough) in [
+            (Vec3::new(0.8, 0.0, 0.0), 0.0f32, 1.0f32),
+            (Vec3::splat(1.0), 0.0, 0.5),
+            (Vec3::new(0.9, 0.6, 0.2), 1.0, 0.3),
+            (Vec3::splat(0.5), 0.5, 0.1),
+        ] {
+            let b = Bsdf::MetalRough {
+                base,
+                metallic,
+                alpha: (rough * rough).max(MIN_ALPHA),
+            };
+            let wo = dir(20.0);
+            let mut rng = Rng::new(8);
+            let n = 40_000;
+            let mut sum = Vec3::ZERO;
+            for _ in 0..n {
+                if let Some(s) = b.sample(wo, rng.next_2d(), rng.next_f32()) {
+                    let (fc, pdf) = b.eval(wo, s.wi);
+                    assert!((fc / pdf - s.weight).length() <= 1e-4 * s.weight.length().max(1.0));
+                    sum += s.weight;
+                }
+            }
+            let mean = sum / n as f32;
+            assert!(
+                mean.max_element() <= 1.02,
+                "{base} {metallic} {rough}: {mean}"
+            );
+            if metallic == 0.0 && rough == 1.0 {
+                // Red Lambert with 1 − F ≈ 0.96, plus a small grey specular part.
+                assert!(mean.x > 0.7 && mean.x < 0.85 && mean.y < 0.1, "{mean}");
+            }
+        }
     }
 
     #[test]

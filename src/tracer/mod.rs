@@ -263,6 +263,15 @@ impl PathTracer {
                         alpha: (roughness * roughness).max(material::MIN_ALPHA),
                     })
                 }
+                Material::MetallicRoughness {
+                    base_color,
+                    metallic,
+                    roughness,
+                } => ResolvedMaterial::Fixed(Bsdf::MetalRough {
+                    base: base_color,
+                    metallic,
+                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                }),
                 Material::Mirror { reflectance } => {
                     ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
                 }
@@ -289,7 +298,12 @@ impl PathTracer {
             has_environment: lights.env_radiance.is_some(),
             has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
             has_glossy: used(&|m| {
-                matches!(m, Material::Glossy { .. } | Material::Conductor { .. })
+                matches!(
+                    m,
+                    Material::Glossy { .. }
+                        | Material::Conductor { .. }
+                        | Material::MetallicRoughness { .. }
+                )
             }),
             has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
             has_texture: used(&|m| {

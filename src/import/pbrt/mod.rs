@@ -920,9 +920,11 @@ impl Importer<'_> {
                     mesh.indices,
                 )
             }
-            other => return Err(pos.error(format!(
+            other => {
+                return Err(pos.error(format!(
                 "shape \"{other}\" is not supported (trianglemesh, bilinearmesh, plymesh, sphere)"
-            ))),
+            )))
+            }
         };
         self.count_triangles(indices.len(), pos)?;
         let normal_m = DMat3::from_mat4(m).inverse().transpose();
@@ -965,9 +967,11 @@ impl Importer<'_> {
         let idx: Vec<f64> = match p.nums("indices")? {
             Some((v, _)) => v.to_vec(),
             None if n == per => (0..per).map(|i| i as f64).collect(),
-            None => return Err(pos.error(format!(
+            None => {
+                return Err(pos.error(format!(
                 "{ty} has no \"integer indices\" (required unless there are exactly {per} points)"
-            ))),
+            )))
+            }
         };
         let ipos = p.get("indices").map_or(pos, |q| &q.pos).clone();
         if idx.len() % per != 0 {
