@@ -11,6 +11,7 @@
 //! Files a scene names are read through a [`FileSource`], which confines every name to the
 //! scene's folder: an import never reads a file outside it.
 
+pub mod bundle;
 pub mod gltf;
 pub mod pbrt;
 pub mod ply;
@@ -292,4 +293,83 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<(Scene, Vec<String>), S
 
 fn file_error(path: &Path, message: impl Into<String>) -> SceneError {
     ImportError::invalid(path.display().to_string(), message).into()
+}
+
+/// What `POST /v1/jobs` may carry besides a scene document (scene-import.md "Over HTTP").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Upload {
+    /// `model/gltf-binary`: a self-contained `.glb`.
+    Glb,
+    /// `application/zip`: one scene file at the root and the files it names.
+    Zip,
+}
+
+/// Render settings given as query parameters for an uploaded file.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct UploadSettings {
+    pub width: Option<u64>,
+    pub height: Option<u64>,
+    pub samples_per_pixel: Option<u64>,
+    pub mode: Option<crate::scene::RenderMode>,
+    pub seed: Option<u64>,
+}
+
+/// An upload as a scene document (JSON text, what the job stores and a restart parses
+/// again) and the import's warnings. A bundle whose scene file is itself a document is
+/// returned unchanged: its own settings hold.
+pub fn import_upload(
+    kind: Upload,
+    bytes: &[u8],
+    settings: &UploadSettings,
+    limits: &Limits,
+) -> Result<(String, Vec<String>), SceneError> {
+    let il = ImportLimits::from_scene(limits);
+    let imported = match kind {
+        Upload::Glb => gltf::import("upload.glb", bytes, &bundle::Bundle::default(), &il)?,
+        Upload::Zip => {
+            let bl = bundle::BundleLimits {
+                max_entries: 10_000,
+                max_unpacked: 1 << 28,
+            };
+            let to_err = |e: bundle::BundleError| {
+                let f = if e.too_large {
+                    ImportError::limit
+                } else {
+                    ImportError::invalid
+                };
+                SceneError::from(f("bundle", e.message))
+            };
+            let b = bundle::Bundle::parse(bytes, &bl).map_err(to_err)?;
+            let name = b.scene_file().map_err(to_err)?.to_string();
+            let data = b.get(&name).unwrap_or_default();
+            let format =
+                Format::of(Path::new(&name)).map_err(|m| ImportError::invalid(&name, m))?;
+            if format == Format::Json {
+                let text = String::from_utf8(data.to_vec())
+                    .map_err(|_| ImportError::invalid(&name, "not UTF-8 text"))?;
+                return Ok((text, Vec::new()));
+            }
+            import(format, &name, data, &b, &il)?
+        }
+    };
+    let Imported { mut doc, warnings } = imported;
+    if let Some(w) = settings.width {
+        doc.image.width = w;
+    }
+    if let Some(h) = settings.height {
+        doc.image.height = h;
+    }
+    if let Some(s) = settings.samples_per_pixel {
+        doc.render.samples_per_pixel = s;
+    }
+    if let Some(m) = settings.mode {
+        doc.render.mode = m;
+    }
+    if let Some(s) = settings.seed {
+        doc.render.seed = s;
+    }
+    let text = serde_json::to_string(&doc).map_err(|e| {
+        ImportError::invalid("", format!("cannot write the imported document: {e}"))
+    })?;
+    Ok((text, warnings))
 }

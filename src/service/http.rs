@@ -12,7 +12,7 @@ use super::metrics::Metrics;
 use super::store::{JobRecord, JobState, StoreError};
 use super::{auth, examples, ws};
 use crate::progressive::layers::LAYERS;
-use crate::scene::{parse_scene, SceneErrorKind, SceneOrigin};
+use crate::scene::{parse_scene, RenderMode, SceneErrorKind, SceneOrigin};
 use axum::extract::{FromRequest, FromRequestParts, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -254,12 +254,36 @@ async fn read_body<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, Api
 
 /// The raw body of `POST /v1/jobs`. Any (or no) content type is accepted: the document is
 /// JSON by contract and `curl -d @scene.json` sends form encoding by default.
-pub struct SceneBody(pub String);
+pub enum SceneBody {
+    /// A scene document (`application/json`, or no content type).
+    Json(String),
+    /// A file to import (scene-import.md): `model/gltf-binary` or `application/zip`.
+    Upload(crate::import::Upload, Bytes),
+}
 
 impl FromRequest<AppState> for SceneBody {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &AppState) -> Result<Self, Self::Rejection> {
+        let upload = match req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .map(|v| {
+                v.split(';')
+                    .next()
+                    .unwrap_or("")
+                    .trim()
+                    .to_ascii_lowercase()
+            })
+            .as_deref()
+        {
+            Some("model/gltf-binary") => Some(crate::import::Upload::Glb),
+            Some("application/zip" | "application/x-zip-compressed") => {
+                Some(crate::import::Upload::Zip)
+            }
+            _ => None,
+        };
         let bytes = read_body(req, state).await.map_err(|mut e| {
             if e.code == ErrorCode::TooLarge {
                 e.message = format!(
@@ -269,6 +293,9 @@ impl FromRequest<AppState> for SceneBody {
             }
             e
         })?;
+        if let Some(kind) = upload {
+            return Ok(SceneBody::Upload(kind, bytes));
+        }
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Err(ApiError::new(
                 ErrorCode::InvalidJson,
@@ -281,8 +308,45 @@ impl FromRequest<AppState> for SceneBody {
                 format!("the body is not UTF-8: {e}"),
             )
         })?;
-        Ok(SceneBody(text))
+        Ok(SceneBody::Json(text))
     }
+}
+
+/// Render settings of an upload from the query (`?spp=64&width=640&height=480&mode=...`).
+fn upload_settings(q: &HashMap<String, String>) -> Result<crate::import::UploadSettings, ApiError> {
+    let num = |k: &str| -> Result<Option<u64>, ApiError> {
+        q.get(k)
+            .map(|v| {
+                v.parse::<u64>().map_err(|_| {
+                    ApiError::new(
+                        ErrorCode::InvalidParameter,
+                        format!("?{k}= must be a non-negative integer, got \"{v}\""),
+                    )
+                    .at(k)
+                })
+            })
+            .transpose()
+    };
+    let mode = match q.get("mode").map(String::as_str) {
+        None => None,
+        Some("progressive") => Some(RenderMode::Progressive),
+        Some("guo") => Some(RenderMode::Guo),
+        Some("reference") => Some(RenderMode::Reference),
+        Some(other) => {
+            return Err(ApiError::new(
+                ErrorCode::InvalidParameter,
+                format!("?mode= must be progressive, guo or reference, got \"{other}\""),
+            )
+            .at("mode"))
+        }
+    };
+    Ok(crate::import::UploadSettings {
+        width: num("width")?,
+        height: num("height")?,
+        samples_per_pixel: num("spp")?,
+        mode,
+        seed: num("seed")?,
+    })
 }
 
 /// A job id from the path. Anything that is not a UUID is simply a job that does not
@@ -482,16 +546,41 @@ async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
 // ---------------------------------------------------------------------------------------
 // Handlers
 
+/// The 201 answer: the job, and what an import had to approximate or supply.
+#[derive(Serialize)]
+struct Created {
+    #[serde(flatten)]
+    job: JobRecord,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    warnings: Vec<String>,
+}
+
 async fn create_job(
     State(st): State<AppState>,
-    SceneBody(text): SceneBody,
+    Params(query): Params,
+    body: SceneBody,
 ) -> Result<Response, ApiError> {
     // Validation can be heavy (8 MiB of mesh): off the async runtime. A panic inside the
-    // parser becomes a 500, never a dead server.
+    // parser becomes a 500, never a dead server. An upload is imported into a scene
+    // document first; the job stores that document, so a restart parses it again.
     let limits = *st.jobs.limits();
-    let (text, parsed) = tokio::task::spawn_blocking(move || {
+    let settings = match &body {
+        SceneBody::Upload(..) => Some(upload_settings(&query)?),
+        SceneBody::Json(_) => None,
+    };
+    let (text, parsed, warnings) = tokio::task::spawn_blocking(move || {
+        let (text, warnings) = match body {
+            SceneBody::Json(text) => (text, Vec::new()),
+            SceneBody::Upload(kind, bytes) => {
+                let s = settings.unwrap_or_default();
+                match crate::import::import_upload(kind, &bytes, &s, &limits) {
+                    Ok(r) => r,
+                    Err(e) => return (String::new(), Err(e), Vec::new()),
+                }
+            }
+        };
         let r = parse_scene(&text, &SceneOrigin::Request, &limits);
-        (text, r)
+        (text, r, warnings)
     })
     .await
     .map_err(|e| ApiError::internal("validating the scene", &e))?;
@@ -542,7 +631,12 @@ async fn create_job(
     if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
         headers.insert(header::LOCATION, v);
     }
-    Ok((StatusCode::CREATED, headers, Json(job)).into_response())
+    Ok((
+        StatusCode::CREATED,
+        headers,
+        Json(Created { job, warnings }),
+    )
+        .into_response())
 }
 
 /// Seconds to wait before retrying a full queue: grows with the backlog, 1 s to 60 s.
