@@ -325,7 +325,13 @@ pub fn import_upload(
 ) -> Result<(String, Vec<String>), SceneError> {
     let il = ImportLimits::from_scene(limits);
     let imported = match kind {
-        Upload::Glb => gltf::import("upload.glb", bytes, &bundle::Bundle::default(), &il)?,
+        Upload::Glb => import(
+            Format::Gltf,
+            "upload.glb",
+            bytes,
+            &bundle::Bundle::default(),
+            &il,
+        )?,
         Upload::Zip => {
             let bl = bundle::BundleLimits {
                 max_entries: 10_000,
