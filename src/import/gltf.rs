@@ -36,7 +36,15 @@ pub fn import(
     } else {
         (bytes, None)
     };
-    let gltf = gltf::Gltf::from_slice(json).map_err(|e| json_error(name, &e))?;
+    check_attribute_indices(name, json)?;
+    // The crate's validation indexes some arrays before checking the index (a POSITION
+    // accessor index out of range panicked in gltf-json 1.4.1's validation hook, found by
+    // tests/import_fuzz.rs); the check above refuses that case with its pointer, and any
+    // other panic inside the crate becomes an error here instead of reaching the caller.
+    let parsed = std::panic::catch_unwind(|| gltf::Gltf::from_slice(json)).map_err(|_| {
+        ImportError::invalid(name, "not valid glTF (the glTF parser gave up on it)")
+    })?;
+    let gltf = parsed.map_err(|e| json_error(name, &e))?;
     let mut im = Gltf {
         name,
         files,
@@ -103,6 +111,32 @@ fn split_glb<'a>(name: &str, b: &'a [u8]) -> Result<(&'a [u8], Option<&'a [u8]>)
         [(JSON, j), rest @ ..] => Ok((j, rest.iter().find(|c| c.0 == BIN).map(|c| c.1))),
         _ => Err(err("the first GLB chunk must be JSON".into())),
     }
+}
+
+/// Every mesh attribute's accessor index is in range (what gltf-json's validation assumes).
+fn check_attribute_indices(name: &str, json: &[u8]) -> Result<(), ImportError> {
+    let Ok(v) = serde_json::from_slice::<serde_json::Value>(json) else {
+        return Ok(()); // the crate reports the syntax error with its position
+    };
+    let accessors = v["accessors"].as_array().map_or(0, Vec::len) as u64;
+    for (m, mesh) in v["meshes"].as_array().into_iter().flatten().enumerate() {
+        for (k, prim) in mesh["primitives"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            for (attr, idx) in prim["attributes"].as_object().into_iter().flatten() {
+                if idx.as_u64().is_some_and(|i| i >= accessors) {
+                    return Err(ImportError::invalid(
+                        format!("{name}: /meshes/{m}/primitives/{k}/attributes/{attr}"),
+                        format!("accessor {idx} does not exist ({accessors} accessors)"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A `gltf` crate error as an [`ImportError`] at its JSON pointer.
