@@ -13,6 +13,7 @@
 
 pub mod bundle;
 pub mod gltf;
+pub mod obj;
 pub mod pbrt;
 pub mod ply;
 pub mod texture;
@@ -76,6 +77,8 @@ pub enum Format {
     Pbrt,
     /// `.gltf` or `.glb` (told apart by the GLB magic).
     Gltf,
+    /// Wavefront `.obj` with its `.mtl`.
+    Obj,
 }
 
 impl Format {
@@ -90,8 +93,9 @@ impl Format {
             "json" => Ok(Format::Json),
             "pbrt" => Ok(Format::Pbrt),
             "gltf" | "glb" => Ok(Format::Gltf),
+            "obj" => Ok(Format::Obj),
             other => Err(format!(
-                "unknown scene format `.{other}`; Glimpse reads .json, .pbrt, .gltf and .glb"
+                "unknown scene format `.{other}`; Glimpse reads .json, .pbrt, .gltf, .glb and .obj"
             )),
         }
     }
@@ -178,6 +182,7 @@ pub fn import(
             pbrt::import(name, text, files, limits)?
         }
         Format::Gltf => gltf::import(name, bytes, files, limits)?,
+        Format::Obj => obj::import(name, bytes, files, limits)?,
     };
     supply_missing(&mut imported);
     Ok(imported)
