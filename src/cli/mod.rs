@@ -2,6 +2,7 @@
 //! `anyhow::Result` so `main` prints one clear sentence and exits non-zero.
 
 pub mod compare;
+pub mod convert;
 pub mod render;
 
 use clap::{Parser, Subcommand};
@@ -24,6 +25,8 @@ pub enum Command {
     Serve(ServeArgs),
     /// Render one scene without a server.
     Render(render::RenderArgs),
+    /// Import a scene (.pbrt) and write the scene document Glimpse understood.
+    Convert(convert::ConvertArgs),
     /// Perceptual distance between two images.
     Compare(compare::CompareArgs),
     /// The speed-versus-accuracy study.
@@ -139,6 +142,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Render(a) => render::run(&a),
         Command::Compare(a) => compare::run(&a),
+        Command::Convert(a) => convert::run(&a),
         Command::Serve(a) => serve(a),
         Command::Bench(a) => bench(&a),
     }

@@ -3,14 +3,14 @@
 use crate::cancel::CancelToken;
 use crate::progressive::{self, RenderOptions};
 use crate::raster;
-use crate::scene::{parse_scene, Limits, RenderMode, SceneOrigin};
+use crate::scene::{Limits, RenderMode};
 use crate::tracer::PathTracer;
 use anyhow::Context;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
-    /// The scene document (scene-format.md).
+    /// The scene: a document (.json, scene-format.md) or a file to import (.pbrt).
     pub scene: PathBuf,
     #[arg(long)]
     pub output: PathBuf,
@@ -126,15 +126,11 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
-    let json = std::fs::read_to_string(&a.scene)
-        .with_context(|| format!("cannot read scene {}", a.scene.display()))?;
-    let dir = a
-        .scene
-        .parent()
-        .map(std::path::Path::to_path_buf)
-        .unwrap_or_default();
-    let mut scene = parse_scene(&json, &SceneOrigin::File { dir }, &Limits::command_line())
+    let (mut scene, import_warnings) = crate::import::load_path(&a.scene, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+    for w in &import_warnings {
+        eprintln!("warning: {w}");
+    }
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }

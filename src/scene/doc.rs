@@ -23,7 +23,7 @@
 use std::collections::BTreeMap;
 
 use serde::de::{DeserializeOwned, Error as _};
-use serde::{Deserialize, Deserializer};
+use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::Value;
 
 use super::RenderMode;
@@ -32,12 +32,12 @@ use super::RenderMode;
 pub type V3 = [f32; 3];
 
 /// The whole document (scene-format.md, top level).
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneDoc {
     /// Must be 1 (checked in validation so the message can say so).
     pub version: u64,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
     pub image: ImageDoc,
     pub camera: CameraDoc,
@@ -58,14 +58,14 @@ pub struct SceneDoc {
     pub progressive: ProgressiveDoc,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImageDoc {
     pub width: u64,
     pub height: u64,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraDoc {
     pub position: V3,
@@ -82,7 +82,7 @@ fn default_up() -> V3 {
 }
 
 /// Defaults from scene-format.md `display`: 100, 0.5, 1.0, 28.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DisplayDoc {
     pub peak_luminance: f32,
@@ -103,49 +103,74 @@ impl Default for DisplayDoc {
     }
 }
 
-/// Materials (`"type"`: diffuse, glossy, mirror, dielectric, emissive).
-#[derive(Clone, Debug)]
+/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, mirror,
+/// dielectric, emissive).
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
 pub enum MaterialDoc {
     Diffuse(DiffuseDoc),
     Glossy(GlossyDoc),
+    Conductor(ConductorDoc),
+    #[serde(rename = "metallic_roughness")]
+    MetallicRoughness(MetallicRoughnessDoc),
     Mirror(MirrorDoc),
     Dielectric(DielectricDoc),
     Emissive(EmissiveDoc),
 }
 
 /// Exactly one of `albedo` and `texture` (checked in validation).
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DiffuseDoc {
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub albedo: Option<V3>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub texture: Option<TextureDoc>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GlossyDoc {
     pub albedo: V3,
     pub roughness: f32,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+/// A metal (our extension for imported scenes): complex index `eta + i·k` per RGB channel
+/// and GGX `roughness` in [0, 1] (alpha = roughness², as `glossy`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConductorDoc {
+    pub eta: V3,
+    pub k: V3,
+    pub roughness: f32,
+}
+
+/// glTF 2.0's metallic-roughness material (our extension for imported scenes):
+/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MetallicRoughnessDoc {
+    pub base_color: V3,
+    pub metallic: f32,
+    pub roughness: f32,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MirrorDoc {
     pub reflectance: V3,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DielectricDoc {
     pub ior: f32,
     /// Default: clear glass, `[1, 1, 1]`.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tint: Option<V3>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct EmissiveDoc {
     pub radiance: V3,
@@ -155,13 +180,14 @@ pub struct EmissiveDoc {
 }
 
 /// Procedural textures (`"type"`: checker, noise); both have the same fields.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
 pub enum TextureDoc {
     Checker(TextureFields),
     Noise(TextureFields),
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TextureFields {
     pub scale: f32,
@@ -170,23 +196,24 @@ pub struct TextureFields {
 }
 
 /// `transform`: scale, then rotate x, y, z (degrees), then translate.
-#[derive(Clone, Debug, Default, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TransformDoc {
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub translate: Option<V3>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<ScaleDoc>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotate_x: Option<f32>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotate_y: Option<f32>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotate_z: Option<f32>,
 }
 
 /// `scale`: a number (uniform) or a 3-vector (per axis).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(untagged)]
 pub enum ScaleDoc {
     Uniform(f32),
     Axes(V3),
@@ -209,7 +236,8 @@ impl<'de> Deserialize<'de> for ScaleDoc {
 }
 
 /// Objects (`"type"`: sphere, quad, box, mesh, obj).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
 pub enum ObjectDoc {
     Sphere(SphereDoc),
     Quad(QuadDoc),
@@ -242,81 +270,82 @@ impl ObjectDoc {
     }
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SphereDoc {
     pub center: V3,
     pub radius: f32,
     pub material: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct QuadDoc {
     pub corner: V3,
     pub edge_u: V3,
     pub edge_v: V3,
     pub material: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BoxDoc {
     pub min: V3,
     pub max: V3,
     pub material: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MeshDoc {
     pub positions: Vec<V3>,
     pub indices: Vec<[u64; 3]>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normals: Option<Vec<V3>>,
     pub material: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjDoc {
     pub path: String,
     pub material: String,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
 }
 
 /// Explicit lights (`"type"`: point, directional, environment).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
 pub enum LightDoc {
     Point(PointLightDoc),
     Directional(DirectionalLightDoc),
     Environment(EnvironmentLightDoc),
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PointLightDoc {
     pub position: V3,
     pub intensity: V3,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct DirectionalLightDoc {
     pub direction: V3,
     pub irradiance: V3,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct EnvironmentLightDoc {
     pub radiance: V3,
@@ -324,7 +353,7 @@ pub struct EnvironmentLightDoc {
 
 /// `render`. The spec gives no defaults; ours are cheap and safe: a progressive render
 /// of 16 samples per traced pixel, 5 bounces, seed 1.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RenderDoc {
     pub mode: RenderMode,
@@ -346,7 +375,7 @@ impl Default for RenderDoc {
 
 /// `progressive`. Defaults are [`super::ProgressiveSettings::default`] (the spec's example
 /// values: t0 1, t1 null, initial_rate 0.01, homogeneity 0.8, epsilon 1, 64 iterations).
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ProgressiveDoc {
     pub t0: f32,
@@ -446,11 +475,21 @@ fn variant<T: DeserializeOwned, E: serde::de::Error>(v: Value) -> Result<T, E> {
 
 impl<'de> Deserialize<'de> for MaterialDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let types = ["diffuse", "glossy", "mirror", "dielectric", "emissive"];
+        let types = [
+            "diffuse",
+            "glossy",
+            "conductor",
+            "metallic_roughness",
+            "mirror",
+            "dielectric",
+            "emissive",
+        ];
         let (t, rest) = tagged(d, "material", &types)?;
         match t.as_str() {
             "diffuse" => variant(rest).map(MaterialDoc::Diffuse),
             "glossy" => variant(rest).map(MaterialDoc::Glossy),
+            "conductor" => variant(rest).map(MaterialDoc::Conductor),
+            "metallic_roughness" => variant(rest).map(MaterialDoc::MetallicRoughness),
             "mirror" => variant(rest).map(MaterialDoc::Mirror),
             "dielectric" => variant(rest).map(MaterialDoc::Dielectric),
             _ => variant(rest).map(MaterialDoc::Emissive),

@@ -10,7 +10,8 @@ pub mod transform;
 pub mod validate;
 
 pub use validate::{
-    parse_scene, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin, MAX_COORDINATE,
+    parse_scene, validate_doc, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin,
+    MAX_COORDINATE,
 };
 
 use glam::Vec3;
@@ -92,11 +93,36 @@ pub enum Texture {
 
 #[derive(Clone, Copy, Debug)]
 pub enum Material {
-    Diffuse { albedo: Texture },
-    Glossy { albedo: Vec3, roughness: f32 },
-    Mirror { reflectance: Vec3 },
-    Dielectric { ior: f32, tint: Vec3 },
-    Emissive { radiance: Vec3, two_sided: bool },
+    Diffuse {
+        albedo: Texture,
+    },
+    Glossy {
+        albedo: Vec3,
+        roughness: f32,
+    },
+    /// A metal: complex index `eta + i·k` per channel, GGX `roughness` (alpha = roughness²).
+    Conductor {
+        eta: Vec3,
+        k: Vec3,
+        roughness: f32,
+    },
+    /// glTF 2.0 metallic-roughness (glTF spec Appendix B).
+    MetallicRoughness {
+        base_color: Vec3,
+        metallic: f32,
+        roughness: f32,
+    },
+    Mirror {
+        reflectance: Vec3,
+    },
+    Dielectric {
+        ior: f32,
+        tint: Vec3,
+    },
+    Emissive {
+        radiance: Vec3,
+        two_sided: bool,
+    },
 }
 
 /// One triangle in world space. Shading normals are optional (mesh `normals`).

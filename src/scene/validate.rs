@@ -136,6 +136,16 @@ pub fn parse_scene(json: &str, origin: &SceneOrigin, limits: &Limits) -> Result<
     build(&doc, origin, limits)
 }
 
+/// Validates a document built in memory (an import) by exactly the rules a parsed one
+/// meets.
+pub fn validate_doc(
+    doc: &SceneDoc,
+    origin: &SceneOrigin,
+    limits: &Limits,
+) -> Result<Scene, SceneError> {
+    build(doc, origin, limits)
+}
+
 fn one(kind: SceneErrorKind, path: String, message: String) -> SceneError {
     SceneError {
         kind,
@@ -773,6 +783,30 @@ fn check_materials(
                 Material::Glossy {
                     albedo,
                     roughness: g.roughness,
+                }
+            }
+            MaterialDoc::Conductor(c) => {
+                let eta = cx.nonneg3(&format!("{p}.eta"), c.eta);
+                let k = cx.nonneg3(&format!("{p}.k"), c.k);
+                // η = k = 0 makes the complex Fresnel 0/0 at normal incidence.
+                if eta.max_element() <= 0.0 && k.max_element() <= 0.0 {
+                    cx.err(&format!("{p}.eta"), "eta and k must not both be zero");
+                }
+                cx.in_unit(&format!("{p}.roughness"), c.roughness);
+                Material::Conductor {
+                    eta,
+                    k,
+                    roughness: c.roughness,
+                }
+            }
+            MaterialDoc::MetallicRoughness(m) => {
+                let base_color = cx.colour01(&format!("{p}.base_color"), m.base_color);
+                cx.in_unit(&format!("{p}.metallic"), m.metallic);
+                cx.in_unit(&format!("{p}.roughness"), m.roughness);
+                Material::MetallicRoughness {
+                    base_color,
+                    metallic: m.metallic,
+                    roughness: m.roughness,
                 }
             }
             MaterialDoc::Mirror(r) => Material::Mirror {

@@ -12,7 +12,7 @@ use super::metrics::Metrics;
 use super::store::{clip, JobRecord, JobState, StoreError};
 use super::{auth, examples, ws};
 use crate::progressive::layers::LAYERS;
-use crate::scene::{parse_scene, SceneErrorKind, SceneOrigin};
+use crate::scene::{parse_scene, RenderMode, SceneErrorKind, SceneOrigin};
 use axum::extract::{FromRequest, FromRequestParts, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -295,7 +295,15 @@ async fn read_body<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, Api
 /// budget (`AppState::uploads`): the permit travels with the body until validation ends.
 /// The content type is checked before (`check_origin`, without a token); a UTF-8 byte
 /// order mark is skipped (Windows editors write one; JSON forbids it, RFC 8259 §8.1).
-pub struct SceneBody(pub String, pub tokio::sync::OwnedSemaphorePermit);
+pub struct SceneBody(pub SceneContent, pub tokio::sync::OwnedSemaphorePermit);
+
+/// What a submission holds.
+pub enum SceneContent {
+    /// A scene document (`application/json`).
+    Json(String),
+    /// A file to import (scene-import.md): `model/gltf-binary` or `application/zip`.
+    Upload(crate::import::Upload, Bytes),
+}
 
 impl FromRequest<AppState> for SceneBody {
     type Rejection = ApiError;
@@ -314,6 +322,25 @@ impl FromRequest<AppState> for SceneBody {
                 ),
             ));
         }
+        let upload = match req
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .map(|v| {
+                v.split(';')
+                    .next()
+                    .unwrap_or("")
+                    .trim()
+                    .to_ascii_lowercase()
+            })
+            .as_deref()
+        {
+            Some("model/gltf-binary") => Some(crate::import::Upload::Glb),
+            Some("application/zip" | "application/x-zip-compressed") => {
+                Some(crate::import::Upload::Zip)
+            }
+            _ => None,
+        };
         let declared = req
             .headers()
             .get(header::CONTENT_LENGTH)
@@ -336,6 +363,9 @@ impl FromRequest<AppState> for SceneBody {
             }
             e
         })?;
+        if let Some(kind) = upload {
+            return Ok(SceneBody(SceneContent::Upload(kind, bytes), permit));
+        }
         let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Err(ApiError::new(
@@ -349,8 +379,45 @@ impl FromRequest<AppState> for SceneBody {
                 format!("the body is not UTF-8: {e}"),
             )
         })?;
-        Ok(SceneBody(text, permit))
+        Ok(SceneBody(SceneContent::Json(text), permit))
     }
+}
+
+/// Render settings of an upload from the query (`?spp=64&width=640&height=480&mode=...`).
+fn upload_settings(q: &HashMap<String, String>) -> Result<crate::import::UploadSettings, ApiError> {
+    let num = |k: &str| -> Result<Option<u64>, ApiError> {
+        q.get(k)
+            .map(|v| {
+                v.parse::<u64>().map_err(|_| {
+                    ApiError::new(
+                        ErrorCode::InvalidParameter,
+                        format!("?{k}= must be a non-negative integer, got \"{v}\""),
+                    )
+                    .at(k)
+                })
+            })
+            .transpose()
+    };
+    let mode = match q.get("mode").map(String::as_str) {
+        None => None,
+        Some("progressive") => Some(RenderMode::Progressive),
+        Some("guo") => Some(RenderMode::Guo),
+        Some("reference") => Some(RenderMode::Reference),
+        Some(other) => {
+            return Err(ApiError::new(
+                ErrorCode::InvalidParameter,
+                format!("?mode= must be progressive, guo or reference, got \"{other}\""),
+            )
+            .at("mode"))
+        }
+    };
+    Ok(crate::import::UploadSettings {
+        width: num("width")?,
+        height: num("height")?,
+        samples_per_pixel: num("spp")?,
+        mode,
+        seed: num("seed")?,
+    })
 }
 
 /// A job id from the path. Anything that is not a UUID is simply a job that does not
@@ -577,16 +644,41 @@ async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
 /// 210 MB answer to `GET /v1/jobs`.
 pub const MAX_NAME_CHARS: usize = 256;
 
+/// The 201 answer: the job, and what an import had to approximate or supply.
+#[derive(Serialize)]
+struct Created {
+    #[serde(flatten)]
+    job: JobRecord,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    warnings: Vec<String>,
+}
+
 async fn create_job(
     State(st): State<AppState>,
-    SceneBody(text, permit): SceneBody,
+    Params(query): Params,
+    SceneBody(body, permit): SceneBody,
 ) -> Result<Response, ApiError> {
     // Validation can be heavy (8 MiB of mesh): off the async runtime. A panic inside the
-    // parser becomes a 500, never a dead server.
+    // parser becomes a 500, never a dead server. An upload is imported into a scene
+    // document first; the job stores that document, so a restart parses it again.
     let limits = *st.jobs.limits();
-    let (text, parsed) = tokio::task::spawn_blocking(move || {
+    let settings = match &body {
+        SceneContent::Upload(..) => Some(upload_settings(&query)?),
+        SceneContent::Json(_) => None,
+    };
+    let (text, parsed, warnings) = tokio::task::spawn_blocking(move || {
+        let (text, warnings) = match body {
+            SceneContent::Json(text) => (text, Vec::new()),
+            SceneContent::Upload(kind, bytes) => {
+                let s = settings.unwrap_or_default();
+                match crate::import::import_upload(kind, &bytes, &s, &limits) {
+                    Ok(r) => r,
+                    Err(e) => return (String::new(), Err(e), Vec::new()),
+                }
+            }
+        };
         let r = parse_scene(&text, &SceneOrigin::Request, &limits);
-        (text, r)
+        (text, r, warnings)
     })
     .await
     .map_err(|e| ApiError::internal("validating the scene", &e))?;
@@ -646,7 +738,12 @@ async fn create_job(
     if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
         headers.insert(header::LOCATION, v);
     }
-    Ok((StatusCode::CREATED, headers, Json(job)).into_response())
+    Ok((
+        StatusCode::CREATED,
+        headers,
+        Json(Created { job, warnings }),
+    )
+        .into_response())
 }
 
 /// Seconds to wait before retrying a full queue: grows with the backlog, 1 s to 60 s.

@@ -299,6 +299,22 @@ impl PathTracer {
                     albedo,
                     alpha: (roughness * roughness).max(material::MIN_ALPHA),
                 }),
+                Material::Conductor { eta, k, roughness } => {
+                    ResolvedMaterial::Fixed(Bsdf::Conductor {
+                        eta,
+                        k,
+                        alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                    })
+                }
+                Material::MetallicRoughness {
+                    base_color,
+                    metallic,
+                    roughness,
+                } => ResolvedMaterial::Fixed(Bsdf::MetalRough {
+                    base: base_color,
+                    metallic,
+                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                }),
                 Material::Mirror { reflectance } => {
                     ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
                 }
@@ -324,7 +340,14 @@ impl PathTracer {
             }),
             has_environment: lights.env_radiance.is_some(),
             has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
-            has_glossy: used(&|m| matches!(m, Material::Glossy { .. })),
+            has_glossy: used(&|m| {
+                matches!(
+                    m,
+                    Material::Glossy { .. }
+                        | Material::Conductor { .. }
+                        | Material::MetallicRoughness { .. }
+                )
+            }),
             has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
             has_texture: used(&|m| {
                 matches!(

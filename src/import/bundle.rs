@@ -1,0 +1,373 @@
+//! Zip bundles uploaded over HTTP: one scene file at the root and the files it names.
+//! Our own reader of the zip central directory (stored and deflated entries), so that
+//! every limit holds before anything is unpacked:
+//! - the entry count and the total *declared* unpacked size are checked first (a zip bomb
+//!   is refused from its directory, not inflated), and each entry inflates with its
+//!   declared size as a hard cap (a directory that lies gets an error, not a big buffer);
+//! - names are resolved inside the bundle only: absolute names, `..` that leaves the
+//!   bundle, symbolic links and names not in the bundle are errors naming the entry.
+
+use std::collections::BTreeMap;
+
+use super::FileSource;
+
+/// Bounds on a bundle, checked from its directory.
+#[derive(Clone, Copy, Debug)]
+pub struct BundleLimits {
+    pub max_entries: usize,
+    pub max_unpacked: u64,
+}
+
+/// The unpacked files of a bundle by normalised name.
+#[derive(Debug, Default)]
+pub struct Bundle {
+    files: BTreeMap<String, Vec<u8>>,
+}
+
+/// Why a bundle was refused: `too_large` for a limit.
+#[derive(Debug)]
+pub struct BundleError {
+    pub message: String,
+    pub too_large: bool,
+}
+
+fn bad(m: impl Into<String>) -> BundleError {
+    BundleError {
+        message: m.into(),
+        too_large: false,
+    }
+}
+
+fn u16_at(b: &[u8], i: usize) -> Option<usize> {
+    b.get(i..i + 2)
+        .map(|s| usize::from(u16::from_le_bytes([s[0], s[1]])))
+}
+
+fn u32_at(b: &[u8], i: usize) -> Option<u64> {
+    b.get(i..i + 4)
+        .map(|s| u64::from(u32::from_le_bytes([s[0], s[1], s[2], s[3]])))
+}
+
+impl Bundle {
+    /// Reads the bundle in `zip`.
+    pub fn parse(zip: &[u8], limits: &BundleLimits) -> Result<Self, BundleError> {
+        // End of central directory: 22 bytes plus a comment of up to 64 KiB, at the end.
+        let from = zip.len().saturating_sub(22 + 65535);
+        let eocd = (from..zip.len().saturating_sub(21))
+            .rev()
+            .find(|&i| zip[i..i + 4] == [0x50, 0x4b, 0x05, 0x06])
+            .ok_or_else(|| bad("not a zip file (no end of central directory)"))?;
+        let count = u16_at(zip, eocd + 10).unwrap_or(0);
+        let dir_len = u32_at(zip, eocd + 12).unwrap_or(0);
+        let dir_at = u32_at(zip, eocd + 16).unwrap_or(0);
+        if count == 0xffff || dir_at == 0xffff_ffff {
+            return Err(bad("zip64 bundles are not supported"));
+        }
+        if count > limits.max_entries {
+            return Err(BundleError {
+                message: format!(
+                    "the bundle has {count} entries, more than the limit of {}",
+                    limits.max_entries
+                ),
+                too_large: true,
+            });
+        }
+        let dir = zip
+            .get(dir_at as usize..(dir_at + dir_len) as usize)
+            .ok_or_else(|| bad("the central directory lies outside the file (truncated?)"))?;
+        let entries = directory(dir, count)?;
+        let total: u64 = entries.iter().map(|e| e.size).sum();
+        if total > limits.max_unpacked {
+            return Err(BundleError {
+                message: format!(
+                    "the bundle unpacks to {total} bytes, more than the limit of {} (refused before unpacking)",
+                    limits.max_unpacked
+                ),
+                too_large: true,
+            });
+        }
+        let mut files = BTreeMap::new();
+        for e in entries {
+            if e.name.ends_with('/') {
+                continue;
+            }
+            let data = unpack(zip, &e).map_err(|m| bad(format!("entry \"{}\": {m}", e.name)))?;
+            let key = normalise(&e.name).map_err(|m| bad(format!("entry \"{}\": {m}", e.name)))?;
+            files.insert(key, data);
+        }
+        Ok(Self { files })
+    }
+
+    /// The one scene file at the bundle's root (`.json`, `.gltf`, `.glb`, `.pbrt`).
+    pub fn scene_file(&self) -> Result<&str, BundleError> {
+        let scenes: Vec<&str> = self
+            .files
+            .keys()
+            .map(String::as_str)
+            .filter(|n| !n.contains('/'))
+            .filter(|n| super::Format::of(std::path::Path::new(n)).is_ok())
+            .collect();
+        match scenes.as_slice() {
+            [one] => Ok(one),
+            [] => Err(bad(
+                "no scene file (.json, .gltf, .glb or .pbrt) at the bundle's root",
+            )),
+            many => Err(bad(format!(
+                "more than one scene file at the bundle's root: {}",
+                many.join(", ")
+            ))),
+        }
+    }
+
+    #[must_use]
+    pub fn get(&self, name: &str) -> Option<&[u8]> {
+        self.files.get(name).map(Vec::as_slice)
+    }
+}
+
+impl FileSource for Bundle {
+    fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, String> {
+        let key = normalise(name).map_err(|m| format!("\"{name}\": {m}"))?;
+        let data = self
+            .files
+            .get(&key)
+            .ok_or_else(|| format!("\"{name}\" is not in the bundle"))?;
+        if data.len() as u64 > max {
+            return Err(format!(
+                "\"{name}\" is larger than the limit of {max} bytes"
+            ));
+        }
+        Ok(data.clone())
+    }
+}
+
+/// A name inside the bundle with `.` and `..` resolved; absolute names and names that
+/// climb out of the bundle are refused.
+fn normalise(name: &str) -> Result<String, String> {
+    if name.starts_with('/') || name.starts_with('\\') || name.contains(':') {
+        return Err("absolute names are not allowed in a bundle".into());
+    }
+    let mut parts: Vec<&str> = Vec::new();
+    for p in name.split(['/', '\\']) {
+        match p {
+            "" | "." => {}
+            ".." => {
+                if parts.pop().is_none() {
+                    return Err("`..` leaves the bundle".into());
+                }
+            }
+            p => parts.push(p),
+        }
+    }
+    if parts.is_empty() {
+        return Err("empty name".into());
+    }
+    Ok(parts.join("/"))
+}
+
+struct Entry {
+    name: String,
+    method: usize,
+    packed: u64,
+    size: u64,
+    local: u64,
+}
+
+fn directory(dir: &[u8], count: usize) -> Result<Vec<Entry>, BundleError> {
+    let mut out = Vec::with_capacity(count);
+    let mut at = 0;
+    for k in 0..count {
+        let trunc = || bad(format!("central directory entry {k} is truncated"));
+        if dir.get(at..at + 4) != Some(&[0x50, 0x4b, 0x01, 0x02]) {
+            return Err(trunc());
+        }
+        let flags = u16_at(dir, at + 8).ok_or_else(trunc)?;
+        let method = u16_at(dir, at + 10).ok_or_else(trunc)?;
+        let packed = u32_at(dir, at + 20).ok_or_else(trunc)?;
+        let size = u32_at(dir, at + 24).ok_or_else(trunc)?;
+        let (n, x, c) = (
+            u16_at(dir, at + 28).ok_or_else(trunc)?,
+            u16_at(dir, at + 30).ok_or_else(trunc)?,
+            u16_at(dir, at + 32).ok_or_else(trunc)?,
+        );
+        let external = u32_at(dir, at + 38).ok_or_else(trunc)?;
+        let local = u32_at(dir, at + 42).ok_or_else(trunc)?;
+        let name = dir.get(at + 46..at + 46 + n).ok_or_else(trunc)?;
+        let name = String::from_utf8_lossy(name).into_owned();
+        if flags & 1 != 0 {
+            return Err(bad(format!("entry \"{name}\" is encrypted")));
+        }
+        // Unix mode in the high half of the external attributes: S_IFLNK.
+        if (external >> 16) & 0o170_000 == 0o120_000 {
+            return Err(bad(format!(
+                "entry \"{name}\" is a symbolic link (links are not allowed)"
+            )));
+        }
+        if method != 0 && method != 8 {
+            return Err(bad(format!(
+                "entry \"{name}\" uses compression method {method} (stored and deflate only)"
+            )));
+        }
+        out.push(Entry {
+            name,
+            method,
+            packed,
+            size,
+            local,
+        });
+        at += 46 + n + x + c;
+    }
+    Ok(out)
+}
+
+/// An entry's bytes, inflated with its declared size as the cap.
+fn unpack(zip: &[u8], e: &Entry) -> Result<Vec<u8>, String> {
+    let l = e.local as usize;
+    if zip.get(l..l + 4) != Some(&[0x50, 0x4b, 0x03, 0x04]) {
+        return Err("no local header where the directory says".into());
+    }
+    let n = u16_at(zip, l + 26).ok_or("truncated local header")?;
+    let x = u16_at(zip, l + 28).ok_or("truncated local header")?;
+    let start = l + 30 + n + x;
+    let data = zip
+        .get(start..start.saturating_add(e.packed as usize))
+        .ok_or("its data lies outside the file (truncated?)")?;
+    if e.method == 0 {
+        if e.packed != e.size {
+            return Err("a stored entry's sizes disagree".into());
+        }
+        return Ok(data.to_vec());
+    }
+    let out = miniz_oxide::inflate::decompress_to_vec_with_limit(data, e.size as usize).map_err(
+        |err| {
+            format!(
+                "cannot inflate (more data than its declared {} bytes, or corrupt): {err:?}",
+                e.size
+            )
+        },
+    )?;
+    if out.len() as u64 != e.size {
+        return Err(format!(
+            "inflates to {} bytes, not the declared {}",
+            out.len(),
+            e.size
+        ));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A zip of stored entries (name, data, unix mode).
+    pub fn stored_zip(entries: &[(&str, &[u8], u32)]) -> Vec<u8> {
+        let (mut out, mut dir) = (Vec::new(), Vec::new());
+        for (name, data, mode) in entries {
+            let at = out.len() as u32;
+            out.extend([0x50, 0x4b, 0x03, 0x04, 20, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+            out.extend(0u32.to_le_bytes()); // crc (not checked)
+            out.extend((data.len() as u32).to_le_bytes());
+            out.extend((data.len() as u32).to_le_bytes());
+            out.extend((name.len() as u16).to_le_bytes());
+            out.extend(0u16.to_le_bytes());
+            out.extend(name.as_bytes());
+            out.extend(*data);
+            dir.extend([0x50, 0x4b, 0x01, 0x02, 20, 3, 20, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+            dir.extend(0u32.to_le_bytes());
+            dir.extend((data.len() as u32).to_le_bytes());
+            dir.extend((data.len() as u32).to_le_bytes());
+            dir.extend((name.len() as u16).to_le_bytes());
+            dir.extend([0, 0, 0, 0, 0, 0, 0, 0]);
+            dir.extend((mode << 16).to_le_bytes());
+            dir.extend(at.to_le_bytes());
+            dir.extend(name.as_bytes());
+        }
+        let dir_at = out.len() as u32;
+        out.extend(&dir);
+        out.extend([0x50, 0x4b, 0x05, 0x06, 0, 0, 0, 0]);
+        out.extend((entries.len() as u16).to_le_bytes());
+        out.extend((entries.len() as u16).to_le_bytes());
+        out.extend((dir.len() as u32).to_le_bytes());
+        out.extend(dir_at.to_le_bytes());
+        out.extend(0u16.to_le_bytes());
+        out
+    }
+
+    fn limits() -> BundleLimits {
+        BundleLimits {
+            max_entries: 100,
+            max_unpacked: 1 << 20,
+        }
+    }
+
+    #[test]
+    fn names_resolve_inside_the_bundle_only() {
+        let z = stored_zip(&[
+            ("scene.pbrt", b"WorldBegin", 0o100_644),
+            ("models/a.ply", b"ply", 0o100_644),
+        ]);
+        let b = Bundle::parse(&z, &limits()).unwrap();
+        assert_eq!(b.scene_file().unwrap(), "scene.pbrt");
+        assert_eq!(b.read("./models/../models/a.ply", 10).unwrap(), b"ply");
+        assert!(b
+            .read("../scene.pbrt", 10)
+            .unwrap_err()
+            .contains("leaves the bundle"));
+        assert!(b.read("/etc/passwd", 10).unwrap_err().contains("absolute"));
+        assert!(b
+            .read("models/b.ply", 10)
+            .unwrap_err()
+            .contains("\"models/b.ply\" is not in the bundle"));
+        assert!(b.read("models/a.ply", 2).unwrap_err().contains("limit"));
+    }
+
+    #[test]
+    fn links_escapes_and_limits_are_refused_from_the_directory() {
+        let link = stored_zip(&[
+            ("scene.pbrt", b"x", 0o100_644),
+            ("l.ply", b"/etc/passwd", 0o120_777),
+        ]);
+        assert!(Bundle::parse(&link, &limits())
+            .unwrap_err()
+            .message
+            .contains("symbolic link"));
+        let up = stored_zip(&[("../scene.pbrt", b"x", 0o100_644)]);
+        assert!(Bundle::parse(&up, &limits())
+            .unwrap_err()
+            .message
+            .contains("leaves the bundle"));
+        let many: Vec<(String, &[u8], u32)> = (0..101)
+            .map(|i| (format!("f{i}"), &b""[..], 0o100_644))
+            .collect();
+        let many: Vec<(&str, &[u8], u32)> =
+            many.iter().map(|(n, d, m)| (n.as_str(), *d, *m)).collect();
+        let e = Bundle::parse(&stored_zip(&many), &limits()).unwrap_err();
+        assert!(
+            e.too_large && e.message.contains("101 entries"),
+            "{}",
+            e.message
+        );
+        // A deflated entry whose directory claims 1 GiB: refused before inflating.
+        let packed = miniz_oxide::deflate::compress_to_vec(&vec![0u8; 1 << 16], 6);
+        let mut z = stored_zip(&[("zeros.bin", &packed, 0o100_644)]);
+        let dir = z
+            .windows(4)
+            .position(|w| w == [0x50, 0x4b, 0x01, 0x02])
+            .unwrap();
+        z[dir + 10] = 8; // deflate
+        z[dir + 24..dir + 28].copy_from_slice(&(1u32 << 30).to_le_bytes());
+        let e = Bundle::parse(&z, &limits()).unwrap_err();
+        assert!(
+            e.too_large && e.message.contains("refused before unpacking"),
+            "{}",
+            e.message
+        );
+        // The same entry claiming 10 bytes: inflation stops at the cap.
+        z[dir + 24..dir + 28].copy_from_slice(&10u32.to_le_bytes());
+        let e = Bundle::parse(&z, &limits()).unwrap_err();
+        assert!(e.message.contains("cannot inflate"), "{}", e.message);
+        assert!(Bundle::parse(b"PK not a zip", &limits()).is_err());
+        assert!(Bundle::parse(&z[..z.len() - 30], &limits()).is_err());
+    }
+}

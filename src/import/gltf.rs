@@ -1,0 +1,786 @@
+//! The glTF 2.0 importer (`.gltf` with embedded or sibling buffers, `.glb`): the node
+//! tree with its transforms, triangle meshes (indices, normals), `pbrMetallicRoughness`
+//! materials, emission with `KHR_materials_emissive_strength`, `KHR_lights_punctual`
+//! and perspective cameras. Errors name the JSON pointer of what is wrong.
+//!
+//! The `gltf` crate parses and validates the JSON only (its path import would read
+//! `file:` URIs and `../` paths without confinement): the GLB container is split here,
+//! buffers are decoded here (data URIs, or sibling files through the [`FileSource`]),
+//! and every accessor is checked to lie inside its buffer view before it is read, so a
+//! header claiming 2^31 elements allocates nothing.
+
+use std::collections::BTreeMap;
+
+use base64::Engine as _;
+use glam::{Mat3, Mat4, Vec3};
+
+use super::texture::Encoding;
+use super::{FileSource, ImportError, ImportLimits, Imported};
+use crate::scene::doc::{
+    CameraDoc, DirectionalLightDoc, DisplayDoc, EmissiveDoc, ImageDoc, LightDoc, MaterialDoc,
+    MeshDoc, MetallicRoughnessDoc, ObjectDoc, PointLightDoc, ProgressiveDoc, RenderDoc, SceneDoc,
+};
+
+/// Node trees deeper than this are refused (glTF forbids cycles; this also bounds them).
+const MAX_DEPTH: usize = 64;
+
+/// Imports a `.gltf` or `.glb` file (`bytes`, named `name`).
+pub fn import(
+    name: &str,
+    bytes: &[u8],
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+) -> Result<Imported, ImportError> {
+    let (json, bin) = if bytes.starts_with(b"glTF") {
+        split_glb(name, bytes)?
+    } else {
+        (bytes, None)
+    };
+    check_attribute_indices(name, json)?;
+    // The crate's validation indexes some arrays before checking the index (a POSITION
+    // accessor index out of range panicked in gltf-json 1.4.1's validation hook, found by
+    // tests/import_fuzz.rs); the check above refuses that case with its pointer, and any
+    // other panic inside the crate becomes an error here instead of reaching the caller.
+    let parsed = std::panic::catch_unwind(|| gltf::Gltf::from_slice(json)).map_err(|_| {
+        ImportError::invalid(name, "not valid glTF (the glTF parser gave up on it)")
+    })?;
+    let gltf = parsed.map_err(|e| json_error(name, &e))?;
+    let mut im = Gltf {
+        name,
+        files,
+        limits,
+        doc: &gltf.document,
+        buffers: Vec::new(),
+        materials: BTreeMap::new(),
+        objects: Vec::new(),
+        lights: Vec::new(),
+        camera: None,
+        triangles: 0,
+        warnings: Vec::new(),
+    };
+    im.load_buffers(bin)?;
+    im.check_extensions()?;
+    let scene = gltf
+        .document
+        .default_scene()
+        .or_else(|| gltf.document.scenes().next());
+    if let Some(scene) = scene {
+        for node in scene.nodes() {
+            im.node(&node, Mat4::IDENTITY, 0)?;
+        }
+    }
+    im.finish()
+}
+
+/// The JSON and BIN chunks of a GLB, checked against the file's length.
+fn split_glb<'a>(name: &str, b: &'a [u8]) -> Result<(&'a [u8], Option<&'a [u8]>), ImportError> {
+    let err = |m: String| ImportError::invalid(name, m);
+    let u32_at = |i: usize| {
+        b.get(i..i + 4)
+            .map(|s| u32::from_le_bytes([s[0], s[1], s[2], s[3]]) as usize)
+    };
+    let version =
+        u32_at(4).ok_or_else(|| err("truncated GLB header (12 bytes expected)".into()))?;
+    let length = u32_at(8).ok_or_else(|| err("truncated GLB header (12 bytes expected)".into()))?;
+    if version != 2 {
+        return Err(err(format!("GLB version {version}; glTF 2.0 is version 2")));
+    }
+    if length != b.len() {
+        return Err(err(format!(
+            "the GLB header says {length} bytes, the file has {} (truncated?)",
+            b.len()
+        )));
+    }
+    let mut at = 12;
+    let mut chunks = Vec::new();
+    while at < b.len() {
+        let (Some(len), Some(kind)) = (u32_at(at), u32_at(at + 4)) else {
+            return Err(err(format!("truncated chunk header at byte {at}")));
+        };
+        let data = b.get(at + 8..at + 8 + len).ok_or_else(|| {
+            err(format!(
+                "the chunk at byte {at} claims {len} bytes past the end of the file"
+            ))
+        })?;
+        chunks.push((kind, data));
+        at += 8 + len;
+    }
+    const JSON: usize = 0x4E4F_534A;
+    const BIN: usize = 0x004E_4942;
+    match chunks.as_slice() {
+        [(JSON, j), rest @ ..] => Ok((j, rest.iter().find(|c| c.0 == BIN).map(|c| c.1))),
+        _ => Err(err("the first GLB chunk must be JSON".into())),
+    }
+}
+
+/// Every mesh attribute's accessor index is in range (what gltf-json's validation assumes).
+fn check_attribute_indices(name: &str, json: &[u8]) -> Result<(), ImportError> {
+    let Ok(v) = serde_json::from_slice::<serde_json::Value>(json) else {
+        return Ok(()); // the crate reports the syntax error with its position
+    };
+    let accessors = v["accessors"].as_array().map_or(0, Vec::len) as u64;
+    for (m, mesh) in v["meshes"].as_array().into_iter().flatten().enumerate() {
+        for (k, prim) in mesh["primitives"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .enumerate()
+        {
+            for (attr, idx) in prim["attributes"].as_object().into_iter().flatten() {
+                if idx.as_u64().is_some_and(|i| i >= accessors) {
+                    return Err(ImportError::invalid(
+                        format!("{name}: /meshes/{m}/primitives/{k}/attributes/{attr}"),
+                        format!("accessor {idx} does not exist ({accessors} accessors)"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A `gltf` crate error as an [`ImportError`] at its JSON pointer.
+fn json_error(name: &str, e: &gltf::Error) -> ImportError {
+    match e {
+        gltf::Error::Validation(v) if !v.is_empty() => {
+            let (path, err) = &v[0];
+            ImportError::invalid(
+                format!("{name}: {}", pointer(&path.to_string())),
+                err.to_string(),
+            )
+        }
+        other => ImportError::invalid(name, format!("not valid glTF: {other}")),
+    }
+}
+
+/// `meshes[0].primitives[1].indices` → `/meshes/0/primitives/1/indices`.
+fn pointer(path: &str) -> String {
+    // The crate's path may end in ` = "value"`: the pointer stops before it.
+    let path = path.split(' ').next().unwrap_or("");
+    let mut out = String::from("/");
+    for c in path.chars() {
+        match c {
+            '.' | '[' => out.push('/'),
+            ']' => {}
+            c => out.push(c),
+        }
+    }
+    out.replace("//", "/")
+}
+
+struct Gltf<'a> {
+    name: &'a str,
+    files: &'a dyn FileSource,
+    limits: &'a ImportLimits,
+    doc: &'a gltf::Document,
+    buffers: Vec<Vec<u8>>,
+    materials: BTreeMap<String, MaterialDoc>,
+    objects: Vec<ObjectDoc>,
+    lights: Vec<LightDoc>,
+    camera: Option<(CameraDoc, Option<f32>)>,
+    triangles: usize,
+    warnings: Vec<String>,
+}
+
+impl Gltf<'_> {
+    fn at(&self, pointer: &str, msg: impl Into<String>) -> ImportError {
+        ImportError::invalid(format!("{}: {pointer}", self.name), msg)
+    }
+
+    fn check_extensions(&mut self) -> Result<(), ImportError> {
+        const KNOWN: [&str; 2] = ["KHR_lights_punctual", "KHR_materials_emissive_strength"];
+        for (i, e) in self.doc.extensions_required().enumerate() {
+            if !KNOWN.contains(&e) {
+                return Err(self.at(
+                    &format!("/extensionsRequired/{i}"),
+                    format!("required extension {e} is not supported"),
+                ));
+            }
+        }
+        for e in self.doc.extensions_used() {
+            if !KNOWN.contains(&e) {
+                self.warnings.push(format!(
+                    "{}: extension {e} is not modelled: ignored",
+                    self.name
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn load_buffers(&mut self, bin: Option<&[u8]>) -> Result<(), ImportError> {
+        for b in self.doc.buffers() {
+            let p = format!("/buffers/{}", b.index());
+            let data = match b.source() {
+                gltf::buffer::Source::Bin => bin
+                    .ok_or_else(|| self.at(&p, "refers to the GLB binary chunk, which is missing"))?
+                    .to_vec(),
+                gltf::buffer::Source::Uri(uri) => self.uri(&p, uri)?,
+            };
+            if data.len() < b.length() {
+                return Err(self.at(
+                    &format!("{p}/byteLength"),
+                    format!("is {} but the data has {} bytes", b.length(), data.len()),
+                ));
+            }
+            self.buffers.push(data);
+        }
+        Ok(())
+    }
+
+    /// A buffer's bytes: a base64 data URI, or a relative file through the source.
+    fn uri(&self, p: &str, uri: &str) -> Result<Vec<u8>, ImportError> {
+        if let Some(rest) = uri.strip_prefix("data:") {
+            let (_, data) = rest.split_once(";base64,").ok_or_else(|| {
+                self.at(&format!("{p}/uri"), "only base64 data URIs are supported")
+            })?;
+            if data.len() as u64 > self.limits.max_file_bytes * 4 / 3 + 4 {
+                return Err(ImportError::limit(
+                    format!("{}: {p}/uri", self.name),
+                    "the data URI exceeds the file size limit",
+                ));
+            }
+            return base64::engine::general_purpose::STANDARD
+                .decode(data)
+                .map_err(|e| self.at(&format!("{p}/uri"), format!("bad base64: {e}")));
+        }
+        if uri.contains(':') {
+            return Err(self.at(
+                &format!("{p}/uri"),
+                format!("\"{uri}\": only relative file names and data URIs are read"),
+            ));
+        }
+        let name = percent_decode(uri);
+        self.files
+            .read(&name, self.limits.max_file_bytes)
+            .map_err(|e| self.at(&format!("{p}/uri"), e))
+    }
+
+    fn node(&mut self, node: &gltf::Node, parent: Mat4, depth: usize) -> Result<(), ImportError> {
+        let p = format!("/nodes/{}", node.index());
+        if depth > MAX_DEPTH {
+            return Err(self.at(
+                &p,
+                format!("the node tree is deeper than {MAX_DEPTH} (a cycle?)"),
+            ));
+        }
+        let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * local;
+        if !world.is_finite() {
+            return Err(self.at(&p, "its transform is not finite"));
+        }
+        if let Some(mesh) = node.mesh() {
+            self.mesh(&mesh, &world)?;
+        }
+        if let Some(cam) = node.camera() {
+            self.camera_at(&cam, &world, &p);
+        }
+        if let Some(light) = node.light() {
+            self.light(&light, &world);
+        }
+        for child in node.children() {
+            self.node(&child, world, depth + 1)?;
+        }
+        Ok(())
+    }
+
+    fn camera_at(&mut self, cam: &gltf::Camera, world: &Mat4, p: &str) {
+        if self.camera.is_some() {
+            return;
+        }
+        match cam.projection() {
+            gltf::camera::Projection::Perspective(pp) => {
+                let eye = world.transform_point3(Vec3::ZERO);
+                let fwd = world
+                    .transform_vector3(Vec3::NEG_Z)
+                    .normalize_or(Vec3::NEG_Z);
+                let up = world.transform_vector3(Vec3::Y).normalize_or(Vec3::Y);
+                self.camera = Some((
+                    CameraDoc {
+                        position: eye.to_array(),
+                        look_at: (eye + fwd).to_array(),
+                        up: up.to_array(),
+                        fov_y: pp.yfov().to_degrees(),
+                    },
+                    pp.aspect_ratio(),
+                ));
+            }
+            gltf::camera::Projection::Orthographic(_) => self.warnings.push(format!(
+                "{}: {p}: orthographic camera is not supported: ignored",
+                self.name
+            )),
+        }
+    }
+
+    fn light(&mut self, light: &gltf::khr_lights_punctual::Light, world: &Mat4) {
+        // Photometric units (cd, lx) are taken as Glimpse's radiometric ones, 1:1.
+        let c = Vec3::from(light.color()) * light.intensity();
+        let pos = world.transform_point3(Vec3::ZERO);
+        let dir = world
+            .transform_vector3(Vec3::NEG_Z)
+            .normalize_or(Vec3::NEG_Z);
+        match light.kind() {
+            gltf::khr_lights_punctual::Kind::Directional => {
+                self.lights.push(LightDoc::Directional(DirectionalLightDoc {
+                    direction: dir.to_array(),
+                    irradiance: c.to_array(),
+                }));
+            }
+            kind => {
+                if matches!(kind, gltf::khr_lights_punctual::Kind::Spot { .. }) {
+                    self.warnings.push(format!(
+                        "{}: /extensions/KHR_lights_punctual/lights/{}: spot light rendered as a point light (no cone)",
+                        self.name,
+                        light.index()
+                    ));
+                }
+                self.lights.push(LightDoc::Point(PointLightDoc {
+                    position: pos.to_array(),
+                    intensity: c.to_array(),
+                }));
+            }
+        }
+    }
+
+    fn mesh(&mut self, mesh: &gltf::Mesh, world: &Mat4) -> Result<(), ImportError> {
+        let normal_m = Mat3::from_mat4(*world).inverse().transpose();
+        let mirrors = Mat3::from_mat4(*world).determinant() < 0.0;
+        for prim in mesh.primitives() {
+            let p = format!("/meshes/{}/primitives/{}", mesh.index(), prim.index());
+            if prim.mode() != gltf::mesh::Mode::Triangles {
+                self.warnings.push(format!(
+                    "{}: {p}: mode {:?} is not triangles: ignored",
+                    self.name,
+                    prim.mode()
+                ));
+                continue;
+            }
+            let pos_acc = prim
+                .get(&gltf::Semantic::Positions)
+                .ok_or_else(|| self.at(&format!("{p}/attributes"), "has no POSITION"))?;
+            let positions = self.vec3s(&pos_acc, &format!("{p}/attributes/POSITION"))?;
+            let normals = match prim.get(&gltf::Semantic::Normals) {
+                Some(a) => Some(self.vec3s(&a, &format!("{p}/attributes/NORMAL"))?),
+                None => None,
+            };
+            if normals.as_ref().is_some_and(|n| n.len() != positions.len()) {
+                return Err(self.at(
+                    &format!("{p}/attributes/NORMAL"),
+                    "count differs from POSITION's",
+                ));
+            }
+            let n = positions.len();
+            let mut indices = match prim.indices() {
+                Some(a) => self.indices(&a, &format!("{p}/indices"))?,
+                None => (0..n as u32).collect(),
+            };
+            if indices.len() % 3 != 0 {
+                return Err(self.at(
+                    &format!("{p}/indices"),
+                    format!("{} indices is not a multiple of 3", indices.len()),
+                ));
+            }
+            if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
+                return Err(self.at(
+                    &format!("{p}/indices"),
+                    format!("index {bad} is out of range: {n} vertices"),
+                ));
+            }
+            self.triangles += indices.len() / 3;
+            if self.triangles > self.limits.max_triangles {
+                return Err(ImportError::limit(
+                    format!("{}: {p}", self.name),
+                    format!(
+                        "more than the limit of {} triangles",
+                        self.limits.max_triangles
+                    ),
+                ));
+            }
+            if mirrors {
+                // Keep the winding's normal the transformed normal (front faces stay front).
+                for t in indices.chunks_exact_mut(3) {
+                    t.swap(1, 2);
+                }
+            }
+            let material = self.material(prim.material())?;
+            let normals = normals.map(|ns| {
+                ns.iter()
+                    .map(|&n| (normal_m * Vec3::from(n)).normalize_or_zero())
+                    .collect::<Vec<_>>()
+            });
+            self.objects.push(ObjectDoc::Mesh(MeshDoc {
+                positions: positions
+                    .iter()
+                    .map(|&q| world.transform_point3(Vec3::from(q)).to_array())
+                    .collect(),
+                indices: indices
+                    .chunks_exact(3)
+                    .map(|t| [t[0], t[1], t[2]].map(u64::from))
+                    .collect(),
+                normals: normals
+                    .filter(|ns| ns.iter().all(|n| n.length_squared() > 0.0))
+                    .map(|ns| ns.iter().map(|n| n.to_array()).collect()),
+                material,
+                transform: None,
+            }));
+        }
+        Ok(())
+    }
+
+    /// The bytes of accessor `a` as (data, offset, stride, count), every element checked to
+    /// lie inside its buffer view and buffer before anything is read.
+    fn span(&self, a: &gltf::Accessor) -> Result<(&[u8], usize, usize, usize), ImportError> {
+        let p = &format!("/accessors/{}", a.index());
+        if a.sparse().is_some() {
+            return Err(self.at(&format!("{p}/sparse"), "sparse accessors are not supported"));
+        }
+        let view = a
+            .view()
+            .ok_or_else(|| self.at(p, "an accessor without a bufferView is not supported"))?;
+        let buf = &self.buffers[view.buffer().index()];
+        let size = a.size() as u64;
+        let stride = view.stride().unwrap_or(a.size()) as u64;
+        let count = a.count() as u64;
+        let view_end = (view.offset() as u64).saturating_add(view.length() as u64);
+        let start = (view.offset() as u64).saturating_add(a.offset() as u64);
+        let end = match count {
+            0 => start,
+            _ => start
+                .saturating_add(stride.saturating_mul(count - 1))
+                .saturating_add(size),
+        };
+        if end > view_end || view_end > buf.len() as u64 || stride < size {
+            return Err(self.at(
+                &format!("{p}/count"),
+                format!(
+                    "{count} elements of {size} bytes (stride {stride}) do not fit in bufferView {} ({} bytes at offset {}) of a {}-byte buffer",
+                    view.index(),
+                    view.length(),
+                    view.offset(),
+                    buf.len()
+                ),
+            ));
+        }
+        Ok((buf, start as usize, stride as usize, count as usize))
+    }
+
+    fn vec3s(&self, a: &gltf::Accessor, p: &str) -> Result<Vec<[f32; 3]>, ImportError> {
+        if a.data_type() != gltf::accessor::DataType::F32
+            || a.dimensions() != gltf::accessor::Dimensions::Vec3
+        {
+            return Err(self.at(p, "must be VEC3 of FLOAT"));
+        }
+        let (buf, start, stride, count) = self.span(a)?;
+        let out: Vec<[f32; 3]> = (0..count)
+            .map(|i| {
+                let o = start + i * stride;
+                [0, 1, 2].map(|k| {
+                    let b = &buf[o + 4 * k..o + 4 * k + 4];
+                    f32::from_le_bytes([b[0], b[1], b[2], b[3]])
+                })
+            })
+            .collect();
+        if let Some(i) = out.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(self.at(p, format!("element {i} is not finite")));
+        }
+        Ok(out)
+    }
+
+    fn indices(&self, a: &gltf::Accessor, p: &str) -> Result<Vec<u32>, ImportError> {
+        use gltf::accessor::DataType;
+        if a.dimensions() != gltf::accessor::Dimensions::Scalar {
+            return Err(self.at(p, "indices must be SCALAR"));
+        }
+        let (buf, start, stride, count) = self.span(a)?;
+        let read = |o: usize| -> Option<u32> {
+            Some(match a.data_type() {
+                DataType::U8 => u32::from(buf[o]),
+                DataType::U16 => u32::from(u16::from_le_bytes([buf[o], buf[o + 1]])),
+                DataType::U32 => u32::from_le_bytes([buf[o], buf[o + 1], buf[o + 2], buf[o + 3]]),
+                _ => return None,
+            })
+        };
+        (0..count)
+            .map(|i| {
+                read(start + i * stride)
+                    .ok_or_else(|| self.at(p, "indices must be unsigned integers"))
+            })
+            .collect()
+    }
+
+    /// The document material of a glTF material (created on first use); an emissive
+    /// material becomes Glimpse's `emissive` (glTF's base layer under it is dropped).
+    fn material(&mut self, m: gltf::Material) -> Result<String, ImportError> {
+        let name = m
+            .index()
+            .map_or("default".to_string(), |i| format!("material-{i}"));
+        if self.materials.contains_key(&name) {
+            return Ok(name);
+        }
+        let p = m
+            .index()
+            .map_or(String::new(), |i| format!("/materials/{i}"));
+        let e = Vec3::from(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
+        let doc = if e.max_element() > 0.0 {
+            if m.emissive_texture().is_some() {
+                self.warnings.push(format!(
+                    "{}: {p}/emissiveTexture: rendered as the emissive factor",
+                    self.name
+                ));
+            }
+            MaterialDoc::Emissive(EmissiveDoc {
+                radiance: e.to_array(),
+                two_sided: m.double_sided(),
+            })
+        } else {
+            let pbr = m.pbr_metallic_roughness();
+            let f = pbr.base_color_factor();
+            let mut base = Vec3::new(f[0], f[1], f[2]);
+            if let Some(t) = pbr.base_color_texture() {
+                base *= Vec3::from(self.texture_mean(
+                    &t.texture(),
+                    &format!("{p}/pbrMetallicRoughness/baseColorTexture"),
+                )?);
+            }
+            if pbr.metallic_roughness_texture().is_some() {
+                self.warnings.push(format!("{}: {p}/pbrMetallicRoughness/metallicRoughnessTexture: not modelled, the factors are used", self.name));
+            }
+            MaterialDoc::MetallicRoughness(MetallicRoughnessDoc {
+                base_color: base.clamp(Vec3::ZERO, Vec3::ONE).to_array(),
+                metallic: pbr.metallic_factor().clamp(0.0, 1.0),
+                roughness: pbr.roughness_factor().clamp(0.0, 1.0),
+            })
+        };
+        self.materials.insert(name.clone(), doc);
+        Ok(name)
+    }
+
+    /// The mean linear colour of a base-colour texture (glTF base colour is sRGB).
+    fn texture_mean(&mut self, t: &gltf::Texture, p: &str) -> Result<[f32; 3], ImportError> {
+        let img = t.source();
+        let (name, bytes) = match img.source() {
+            gltf::image::Source::View { view, mime_type } => {
+                let buf = &self.buffers[view.buffer().index()];
+                let end = view.offset().saturating_add(view.length());
+                let bytes = buf
+                    .get(view.offset()..end)
+                    .ok_or_else(|| self.at(p, "the image's bufferView lies outside its buffer"))?;
+                let ext = if mime_type.contains("png") {
+                    "i.png"
+                } else {
+                    "i.jpg"
+                };
+                (ext.to_string(), bytes.to_vec())
+            }
+            gltf::image::Source::Uri { uri, .. } => (uri.to_string(), self.uri(p, uri)?),
+        };
+        let mean = super::texture::mean_colour(
+            &name,
+            &bytes,
+            Encoding::Srgb,
+            self.limits.max_texture_pixels,
+        )
+        .map_err(|e| self.at(p, e))?;
+        self.warnings.push(format!(
+            "{}: {p}: image texture rendered as its mean colour",
+            self.name
+        ));
+        Ok(mean)
+    }
+
+    fn finish(self) -> Result<Imported, ImportError> {
+        let (camera, aspect) = self.camera.unwrap_or((
+            CameraDoc {
+                position: [0.0; 3],
+                look_at: [0.0, 0.0, -1.0],
+                up: [0.0, 1.0, 0.0],
+                fov_y: 0.0,
+            },
+            None,
+        ));
+        let height = 600u64;
+        let width = aspect.map_or(800, |a| {
+            ((a * height as f32).round() as u64).clamp(1, 16384)
+        });
+        let doc = SceneDoc {
+            version: 1,
+            name: std::path::Path::new(self.name)
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .map(str::to_string),
+            image: ImageDoc { width, height },
+            camera,
+            display: DisplayDoc::default(),
+            materials: self.materials,
+            objects: self.objects,
+            lights: self.lights,
+            render: RenderDoc::default(),
+            progressive: ProgressiveDoc::default(),
+        };
+        Ok(Imported {
+            doc,
+            warnings: self.warnings,
+        })
+    }
+}
+
+/// `%20` and friends in a relative URI.
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            let hex = std::str::from_utf8(&b[i + 1..i + 3]).unwrap_or("");
+            if let Ok(v) = u8::from_str_radix(hex, 16) {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::import::DirSource;
+
+    fn limits() -> ImportLimits {
+        ImportLimits::from_scene(&crate::scene::Limits::command_line())
+    }
+
+    fn none() -> DirSource {
+        DirSource {
+            dir: std::env::temp_dir().join("glimpse-no-such-dir"),
+        }
+    }
+
+    /// One triangle: 3 positions (36 bytes) and 3 u16 indices (6 bytes) in one buffer.
+    fn triangle_json(count: u64, extra: &str) -> String {
+        with_uri(count, None, extra)
+    }
+
+    fn with_uri(count: u64, uri: Option<&str>, extra: &str) -> String {
+        let mut bytes = Vec::new();
+        for v in [[0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+            for c in v {
+                bytes.extend(c.to_le_bytes());
+            }
+        }
+        for i in [0u16, 1, 2] {
+            bytes.extend(i.to_le_bytes());
+        }
+        let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
+        let uri = uri.map_or(
+            format!("data:application/octet-stream;base64,{b64}"),
+            str::to_string,
+        );
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+            "nodes":[{{"mesh":0,"translation":[0,0,-3]}}],
+            "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+            "accessors":[
+              {{"bufferView":0,"componentType":5126,"count":{count},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}},
+              {{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}}],
+            "bufferViews":[{{"buffer":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":6}}],
+            "buffers":[{{"byteLength":42,"uri":"{uri}"}}]{extra}}}"#
+        )
+    }
+
+    fn glb(json: &str) -> Vec<u8> {
+        let mut j = json.as_bytes().to_vec();
+        while j.len() % 4 != 0 {
+            j.push(b' ');
+        }
+        let mut out = b"glTF".to_vec();
+        out.extend(2u32.to_le_bytes());
+        out.extend(((12 + 8 + j.len()) as u32).to_le_bytes());
+        out.extend((j.len() as u32).to_le_bytes());
+        out.extend(0x4E4F_534Au32.to_le_bytes());
+        out.extend(j);
+        out
+    }
+
+    #[test]
+    fn khronos_box_keeps_the_spec_defaults() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/scenes-public/gltf-box");
+        let bytes = std::fs::read(dir.join("Box.gltf")).unwrap();
+        let im = import("Box.gltf", &bytes, &DirSource { dir }, &limits()).unwrap();
+        // No metallicFactor or roughnessFactor in the file: both default to 1 (glTF 2.0
+        // §5.19); the base colour factor is the file's.
+        match &im.doc.materials["material-0"] {
+            MaterialDoc::MetallicRoughness(m) => {
+                assert_eq!(m.base_color, [0.8, 0.0, 0.0]);
+                assert_eq!((m.metallic, m.roughness), (1.0, 1.0));
+            }
+            other => panic!("{other:?}"),
+        }
+        let ObjectDoc::Mesh(mesh) = &im.doc.objects[0] else {
+            panic!()
+        };
+        assert_eq!(mesh.indices.len(), 12);
+        // The root node turns the Z-up model by −90° about x: z extents become y.
+        let ys: Vec<f32> = mesh.positions.iter().map(|p| p[1]).collect();
+        assert!(ys.iter().all(|y| (y.abs() - 0.5).abs() < 1e-6), "{ys:?}");
+        // No camera and no light: both supplied by the caller (fov_y 0 marks it).
+        assert_eq!(im.doc.camera.fov_y, 0.0);
+        assert!(im.doc.lights.is_empty());
+    }
+
+    #[test]
+    fn a_triangle_imports_from_gltf_and_glb() {
+        let j = triangle_json(3, "");
+        for bytes in [j.as_bytes().to_vec(), glb(&j)] {
+            let im = import("t.glb", &bytes, &none(), &limits()).unwrap();
+            let ObjectDoc::Mesh(m) = &im.doc.objects[0] else {
+                panic!()
+            };
+            assert_eq!(m.positions[1], [1.0, 0.0, -3.0]);
+            assert_eq!(m.indices, vec![[0, 1, 2]]);
+            assert!(matches!(
+                im.doc.materials["default"],
+                MaterialDoc::MetallicRoughness(_)
+            ));
+        }
+    }
+
+    #[test]
+    fn bad_files_get_one_clear_error_with_the_pointer() {
+        // A 2^31 accessor count over a 36-byte view: refused before any allocation.
+        let e = import(
+            "t.gltf",
+            triangle_json(1 << 31, "").as_bytes(),
+            &none(),
+            &limits(),
+        )
+        .unwrap_err();
+        assert_eq!(e.location, "t.gltf: /accessors/0/count");
+        assert!(e.message.contains("do not fit"), "{e}");
+        // Truncated GLB.
+        let g = glb(&triangle_json(3, ""));
+        let e = import("t.glb", &g[..g.len() - 10], &none(), &limits()).unwrap_err();
+        assert!(e.message.contains("truncated"), "{e}");
+        let e = import("t.glb", &g[..7], &none(), &limits()).unwrap_err();
+        assert!(e.message.contains("truncated"), "{e}");
+        // A required extension Glimpse lacks.
+        let j = triangle_json(
+            3,
+            r#","extensionsRequired":["KHR_draco_mesh_compression"],"extensionsUsed":["KHR_draco_mesh_compression"]"#,
+        );
+        let e = import("t.gltf", j.as_bytes(), &none(), &limits()).unwrap_err();
+        assert_eq!(e.location, "t.gltf: /extensionsRequired/0");
+        // Files outside the scene's folder, and absolute URIs.
+        for uri in ["../secret.bin", "/etc/passwd", "file:///etc/passwd"] {
+            let j = with_uri(3, Some(uri), "");
+            let e = import("t.gltf", j.as_bytes(), &none(), &limits()).unwrap_err();
+            assert_eq!(e.location, "t.gltf: /buffers/0/uri", "{uri}: {e}");
+        }
+        // Not JSON at all.
+        assert!(import("t.gltf", b"{", &none(), &limits()).is_err());
+    }
+}

@@ -1,0 +1,386 @@
+//! Scene import (shared/spec/scene-import.md): files made by other programs become the
+//! scene document ([`crate::scene::doc::SceneDoc`]) that Glimpse's own format is, and then
+//! the validated [`crate::scene::Scene`] through the same validation. Every mode, the
+//! statistics and the service therefore see an imported scene exactly like a document,
+//! and `glimpse convert` writes the document an import produced.
+//!
+//! - [`gltf`]: glTF 2.0 (`.gltf`, `.glb`), errors at JSON pointers;
+//! - [`pbrt`]: the pbrt-v4 subset (own tokenizer and parser, errors at file:line:column);
+//! - [`ply`]: the PLY meshes pbrt scenes name.
+//!
+//! Files a scene names are read through a [`FileSource`], which confines every name to the
+//! scene's folder: an import never reads a file outside it.
+
+pub mod bundle;
+pub mod gltf;
+pub mod obj;
+pub mod pbrt;
+pub mod ply;
+pub mod texture;
+
+use std::path::{Path, PathBuf};
+
+use crate::scene::doc::{CameraDoc, EnvironmentLightDoc, LightDoc, ObjectDoc, SceneDoc, V3};
+use crate::scene::{
+    parse_scene, validate_doc, Limits, Problem, Scene, SceneError, SceneErrorKind, SceneOrigin,
+};
+
+/// A problem with an imported file: where (`file:line:column`, a JSON pointer, a zip
+/// entry) and what.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{location}: {message}")]
+pub struct ImportError {
+    pub location: String,
+    pub message: String,
+    /// Fine, but beyond a limit (the service answers `too_large`).
+    pub too_large: bool,
+}
+
+impl ImportError {
+    pub fn invalid(location: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            location: location.into(),
+            message: message.into(),
+            too_large: false,
+        }
+    }
+
+    pub fn limit(location: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            too_large: true,
+            ..Self::invalid(location, message)
+        }
+    }
+}
+
+impl From<ImportError> for SceneError {
+    fn from(e: ImportError) -> Self {
+        SceneError {
+            kind: if e.too_large {
+                SceneErrorKind::TooLarge
+            } else {
+                SceneErrorKind::InvalidScene
+            },
+            problems: vec![Problem {
+                path: e.location,
+                message: e.message,
+            }],
+        }
+    }
+}
+
+/// The file formats Glimpse reads, chosen by extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// Glimpse's own scene document.
+    Json,
+    Pbrt,
+    /// `.gltf` or `.glb` (told apart by the GLB magic).
+    Gltf,
+    /// Wavefront `.obj` with its `.mtl`.
+    Obj,
+}
+
+impl Format {
+    /// The format of `path` by its extension (case-insensitive).
+    pub fn of(path: &Path) -> Result<Self, String> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        match ext.as_str() {
+            "json" => Ok(Format::Json),
+            "pbrt" => Ok(Format::Pbrt),
+            "gltf" | "glb" => Ok(Format::Gltf),
+            "obj" => Ok(Format::Obj),
+            other => Err(format!(
+                "unknown scene format `.{other}`; Glimpse reads .json, .pbrt, .gltf, .glb and .obj"
+            )),
+        }
+    }
+}
+
+/// Where the files a scene names come from.
+pub trait FileSource {
+    /// The bytes of `name` (relative to the scene file), refused if larger than `max`
+    /// bytes. The error says why, naming the file.
+    fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, String>;
+}
+
+/// Files in a folder on disk (the command line): names resolve inside it only.
+pub struct DirSource {
+    pub dir: PathBuf,
+}
+
+impl FileSource for DirSource {
+    fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, String> {
+        let path = crate::scene::obj::resolve(&self.dir, name)?;
+        let len = std::fs::metadata(&path)
+            .map_err(|e| format!("cannot open \"{name}\": {e}"))?
+            .len();
+        if len > max {
+            return Err(format!(
+                "\"{name}\" is {len} bytes, more than the limit of {max}"
+            ));
+        }
+        std::fs::read(&path).map_err(|e| format!("cannot read \"{name}\": {e}"))
+    }
+}
+
+/// Bounds on what an import may read and build, checked before allocating.
+#[derive(Clone, Copy, Debug)]
+pub struct ImportLimits {
+    /// Largest single file (scene, include, mesh, texture).
+    pub max_file_bytes: u64,
+    pub max_triangles: usize,
+    /// Largest texture, in pixels.
+    pub max_texture_pixels: u64,
+    /// Most files an import may open (includes, meshes, textures).
+    pub max_files: usize,
+}
+
+impl ImportLimits {
+    /// Derived from the scene limits of the caller.
+    #[must_use]
+    pub fn from_scene(l: &Limits) -> Self {
+        Self {
+            max_file_bytes: 1 << 30,
+            max_triangles: l.max_triangles,
+            max_texture_pixels: 1 << 26,
+            max_files: 4096,
+        }
+    }
+}
+
+/// A scene document made from another format, with what the import had to approximate
+/// or supply (one line each).
+#[derive(Clone, Debug)]
+pub struct Imported {
+    pub doc: SceneDoc,
+    pub warnings: Vec<String>,
+}
+
+/// Imports `bytes` (the contents of the scene file `name`) in `format`.
+pub fn import(
+    format: Format,
+    name: &str,
+    bytes: &[u8],
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+) -> Result<Imported, ImportError> {
+    let mut imported = match format {
+        Format::Json => {
+            return Err(ImportError::invalid(
+                name,
+                "a scene document is parsed, not imported",
+            ))
+        }
+        Format::Pbrt => {
+            let text = std::str::from_utf8(bytes)
+                .map_err(|e| ImportError::invalid(name, format!("not UTF-8 text: {e}")))?;
+            pbrt::import(name, text, files, limits)?
+        }
+        Format::Gltf => gltf::import(name, bytes, files, limits)?,
+        Format::Obj => obj::import(name, bytes, files, limits)?,
+    };
+    supply_missing(&mut imported);
+    Ok(imported)
+}
+
+/// What a file lacks, supplied with one warning each (scene-import.md "Command line"): a
+/// camera that frames the scene's bounds from the front (the importer leaves a zero
+/// `fov_y` when the file has none), and a constant white environment when nothing emits.
+fn supply_missing(im: &mut Imported) {
+    let doc = &mut im.doc;
+    if doc.camera.fov_y == 0.0 {
+        doc.camera = framing_camera(doc);
+        im.warnings.push(format!(
+            "no camera: using one at {:?} looking at {:?} (fov_y {}°)",
+            doc.camera.position, doc.camera.look_at, doc.camera.fov_y
+        ));
+    }
+    let emits = doc
+        .materials
+        .values()
+        .any(|m| matches!(m, crate::scene::doc::MaterialDoc::Emissive(_)));
+    if doc.lights.is_empty() && !emits {
+        doc.lights.push(LightDoc::Environment(EnvironmentLightDoc {
+            radiance: [1.0; 3],
+        }));
+        im.warnings
+            .push("no light: using a constant white environment (radiance 1)".into());
+    }
+}
+
+/// A camera on +z of the bounds' centre, far enough for the bounding sphere to fit a
+/// 40° vertical field of view.
+fn framing_camera(doc: &SceneDoc) -> CameraDoc {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    let mut grow = |p: V3, r: f32| {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a] - r);
+            hi[a] = hi[a].max(p[a] + r);
+        }
+    };
+    for o in &doc.objects {
+        match o {
+            ObjectDoc::Mesh(m) => m.positions.iter().for_each(|&p| grow(p, 0.0)),
+            ObjectDoc::Sphere(s) => grow(s.center, s.radius),
+            _ => {}
+        }
+    }
+    if !lo[0].is_finite() {
+        (lo, hi) = ([-1.0; 3], [1.0; 3]);
+    }
+    let c = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
+    let r = (0..3)
+        .map(|a| (hi[a] - lo[a]) * 0.5)
+        .map(|h| h * h)
+        .sum::<f32>()
+        .sqrt()
+        .max(1e-3);
+    let fov: f32 = 40.0;
+    let dist = r / (fov.to_radians() * 0.5).sin() * 1.05;
+    CameraDoc {
+        position: [c[0], c[1], c[2] + dist],
+        look_at: c,
+        up: [0.0, 1.0, 0.0],
+        fov_y: fov,
+    }
+}
+
+/// Reads the file at `path` without validating it: a scene document is parsed, any other
+/// format imported. `None` for a scene document (it is its own document).
+pub fn import_path(path: &Path, limits: &Limits) -> Result<Option<Imported>, SceneError> {
+    let format = Format::of(path).map_err(|m| file_error(path, m))?;
+    if format == Format::Json {
+        return Ok(None);
+    }
+    let il = ImportLimits::from_scene(limits);
+    let len = std::fs::metadata(path)
+        .map_err(|e| file_error(path, format!("cannot read: {e}")))?
+        .len();
+    if len > il.max_file_bytes {
+        return Err(file_error(
+            path,
+            format!("{len} bytes exceed the limit of {}", il.max_file_bytes),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| file_error(path, format!("cannot read: {e}")))?;
+    let files = DirSource {
+        dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+    };
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("scene");
+    Ok(Some(import(format, name, &bytes, &files, &il)?))
+}
+
+/// The validated scene in the file at `path`, in any format, with the import's warnings
+/// (the validation's own warnings are in [`Scene::warnings`]).
+pub fn load_path(path: &Path, limits: &Limits) -> Result<(Scene, Vec<String>), SceneError> {
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    match import_path(path, limits)? {
+        None => {
+            let json = std::fs::read_to_string(path)
+                .map_err(|e| file_error(path, format!("cannot read: {e}")))?;
+            Ok((
+                parse_scene(&json, &SceneOrigin::File { dir }, limits)?,
+                Vec::new(),
+            ))
+        }
+        Some(im) => {
+            // Imported documents hold their meshes inline: nothing more is read.
+            let scene = validate_doc(&im.doc, &SceneOrigin::Request, limits)?;
+            Ok((scene, im.warnings))
+        }
+    }
+}
+
+fn file_error(path: &Path, message: impl Into<String>) -> SceneError {
+    ImportError::invalid(path.display().to_string(), message).into()
+}
+
+/// What `POST /v1/jobs` may carry besides a scene document (scene-import.md "Over HTTP").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Upload {
+    /// `model/gltf-binary`: a self-contained `.glb`.
+    Glb,
+    /// `application/zip`: one scene file at the root and the files it names.
+    Zip,
+}
+
+/// Render settings given as query parameters for an uploaded file.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct UploadSettings {
+    pub width: Option<u64>,
+    pub height: Option<u64>,
+    pub samples_per_pixel: Option<u64>,
+    pub mode: Option<crate::scene::RenderMode>,
+    pub seed: Option<u64>,
+}
+
+/// An upload as a scene document (JSON text, what the job stores and a restart parses
+/// again) and the import's warnings. A bundle whose scene file is itself a document is
+/// returned unchanged: its own settings hold.
+pub fn import_upload(
+    kind: Upload,
+    bytes: &[u8],
+    settings: &UploadSettings,
+    limits: &Limits,
+) -> Result<(String, Vec<String>), SceneError> {
+    let il = ImportLimits::from_scene(limits);
+    let imported = match kind {
+        Upload::Glb => import(
+            Format::Gltf,
+            "upload.glb",
+            bytes,
+            &bundle::Bundle::default(),
+            &il,
+        )?,
+        Upload::Zip => {
+            let bl = bundle::BundleLimits {
+                max_entries: 10_000,
+                max_unpacked: 1 << 28,
+            };
+            let to_err = |e: bundle::BundleError| {
+                let f = if e.too_large {
+                    ImportError::limit
+                } else {
+                    ImportError::invalid
+                };
+                SceneError::from(f("bundle", e.message))
+            };
+            let b = bundle::Bundle::parse(bytes, &bl).map_err(to_err)?;
+            let name = b.scene_file().map_err(to_err)?.to_string();
+            let data = b.get(&name).unwrap_or_default();
+            let format =
+                Format::of(Path::new(&name)).map_err(|m| ImportError::invalid(&name, m))?;
+            if format == Format::Json {
+                let text = String::from_utf8(data.to_vec())
+                    .map_err(|_| ImportError::invalid(&name, "not UTF-8 text"))?;
+                return Ok((text, Vec::new()));
+            }
+            import(format, &name, data, &b, &il)?
+        }
+    };
+    let Imported { mut doc, warnings } = imported;
+    if let Some(w) = settings.width {
+        doc.image.width = w;
+    }
+    if let Some(h) = settings.height {
+        doc.image.height = h;
+    }
+    if let Some(s) = settings.samples_per_pixel {
+        doc.render.samples_per_pixel = s;
+    }
+    if let Some(m) = settings.mode {
+        doc.render.mode = m;
+    }
+    if let Some(s) = settings.seed {
+        doc.render.seed = s;
+    }
+    let text = serde_json::to_string(&doc).map_err(|e| {
+        ImportError::invalid("", format!("cannot write the imported document: {e}"))
+    })?;
+    Ok((text, warnings))
+}

@@ -1,0 +1,281 @@
+//! Wavefront OBJ with its MTL (tobj reads both from memory: the MTL through the
+//! [`FileSource`], so a `mtllib ../../x` is confined like every other name). MTL
+//! parameters map to Glimpse's materials:
+//! - `Ke` > 0 → `emissive` (radiance Ke);
+//! - `illum 5` → `mirror` (reflectance Ks);
+//! - `illum 4, 6, 7` or a dissolve below 1 → `dielectric` (ior `Ni`, default 1.5);
+//! - `Ks` brighter than `Kd` → `glossy` (albedo Ks, roughness from the Phong exponent `Ns`
+//!   by the usual Beckmann match α = √(2 / (Ns + 2)), roughness = √α);
+//! - otherwise `diffuse` (albedo Kd; a weaker specular part is dropped with a warning).
+
+use std::cell::RefCell;
+use std::collections::BTreeMap;
+use std::io::BufReader;
+
+use super::{FileSource, ImportError, ImportLimits, Imported};
+use crate::scene::doc::{
+    CameraDoc, DielectricDoc, DiffuseDoc, DisplayDoc, EmissiveDoc, GlossyDoc, ImageDoc,
+    MaterialDoc, MeshDoc, MirrorDoc, ObjectDoc, ProgressiveDoc, RenderDoc, SceneDoc,
+};
+
+pub fn import(
+    name: &str,
+    bytes: &[u8],
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+) -> Result<Imported, ImportError> {
+    let opts = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let mtl_errors = RefCell::new(Vec::new());
+    let (models, mats) = tobj::load_obj_buf(&mut BufReader::new(bytes), &opts, |p| {
+        let n = p.to_string_lossy();
+        match files.read(&n, limits.max_file_bytes) {
+            Ok(b) => tobj::load_mtl_buf(&mut BufReader::new(&b[..])),
+            Err(e) => {
+                mtl_errors.borrow_mut().push(e);
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+        }
+    })
+    .map_err(|e| ImportError::invalid(name, format!("cannot read the OBJ: {e}")))?;
+    let mut warnings: Vec<String> = mtl_errors
+        .into_inner()
+        .into_iter()
+        .map(|e| format!("{name}: mtllib {e}: grey diffuse materials instead"))
+        .collect();
+    let mats = mats.unwrap_or_else(|e| {
+        warnings.push(format!(
+            "{name}: the MTL cannot be read ({e}): grey diffuse materials"
+        ));
+        Vec::new()
+    });
+    let mut materials = BTreeMap::new();
+    let mut names = Vec::with_capacity(mats.len());
+    for (i, m) in mats.iter().enumerate() {
+        let key = if m.name.is_empty() {
+            format!("material-{i}")
+        } else {
+            m.name.clone()
+        };
+        materials.insert(key.clone(), material(name, m, &mut warnings));
+        names.push(key);
+    }
+    let mut objects = Vec::new();
+    let mut triangles = 0usize;
+    for model in &models {
+        let mesh = &model.mesh;
+        triangles += mesh.indices.len() / 3;
+        if triangles > limits.max_triangles {
+            return Err(ImportError::limit(
+                name,
+                format!("more than the limit of {} triangles", limits.max_triangles),
+            ));
+        }
+        let material = match mesh.material_id.and_then(|i| names.get(i)) {
+            Some(n) => n.clone(),
+            None => {
+                materials
+                    .entry("default".into())
+                    .or_insert(MaterialDoc::Diffuse(DiffuseDoc {
+                        albedo: Some([0.5; 3]),
+                        texture: None,
+                    }));
+                "default".into()
+            }
+        };
+        let positions: Vec<[f32; 3]> = mesh
+            .positions
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let normals = (mesh.normals.len() == mesh.positions.len() && !mesh.normals.is_empty())
+            .then(|| {
+                mesh.normals
+                    .chunks_exact(3)
+                    .map(|c| [c[0], c[1], c[2]])
+                    .collect::<Vec<_>>()
+            })
+            .filter(|ns| {
+                ns.iter()
+                    .all(|n| n.iter().any(|c| *c != 0.0) && n.iter().all(|c| c.is_finite()))
+            });
+        objects.push(ObjectDoc::Mesh(MeshDoc {
+            positions,
+            indices: mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [t[0], t[1], t[2]].map(u64::from))
+                .collect(),
+            normals,
+            material,
+            transform: None,
+        }));
+    }
+    let doc = SceneDoc {
+        version: 1,
+        name: std::path::Path::new(name)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .map(str::to_string),
+        image: ImageDoc {
+            width: 512,
+            height: 512,
+        },
+        camera: CameraDoc {
+            position: [0.0; 3],
+            look_at: [0.0, 0.0, -1.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y: 0.0,
+        },
+        display: DisplayDoc::default(),
+        materials,
+        objects,
+        lights: Vec::new(),
+        render: RenderDoc::default(),
+        progressive: ProgressiveDoc::default(),
+    };
+    Ok(Imported { doc, warnings })
+}
+
+fn clamp01(v: [f32; 3]) -> [f32; 3] {
+    v.map(|c| {
+        if c.is_finite() {
+            c.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    })
+}
+
+fn material(file: &str, m: &tobj::Material, warnings: &mut Vec<String>) -> MaterialDoc {
+    let kd = m.diffuse.unwrap_or([0.5; 3]);
+    let ks = m.specular.unwrap_or([0.0; 3]);
+    let ke = m.emissive.unwrap_or([0.0; 3]);
+    let illum = m.illumination_model.unwrap_or(2);
+    let max = |v: [f32; 3]| v.iter().fold(0f32, |a, &c| a.max(c));
+    if max(ke) > 0.0 && ke.iter().all(|c| c.is_finite() && *c >= 0.0) {
+        return MaterialDoc::Emissive(EmissiveDoc {
+            radiance: ke,
+            two_sided: false,
+        });
+    }
+    if illum == 5 {
+        return MaterialDoc::Mirror(MirrorDoc {
+            reflectance: clamp01(ks),
+        });
+    }
+    if matches!(illum, 4 | 6 | 7) || m.dissolve.is_some_and(|d| d < 1.0) {
+        let ior = m
+            .optical_density
+            .filter(|n| n.is_finite() && *n > 0.0)
+            .unwrap_or(1.5);
+        return MaterialDoc::Dielectric(DielectricDoc { ior, tint: None });
+    }
+    if max(ks) > max(kd) {
+        let ns = m
+            .shininess
+            .filter(|n| n.is_finite() && *n >= 0.0)
+            .unwrap_or(10.0);
+        let alpha = (2.0 / (ns + 2.0)).sqrt();
+        return MaterialDoc::Glossy(GlossyDoc {
+            albedo: clamp01(ks),
+            roughness: alpha.sqrt().clamp(0.0, 1.0),
+        });
+    }
+    if max(ks) > 0.0 {
+        warnings.push(format!(
+            "{file}: material \"{}\": its specular part (Ks) is dropped (diffuse Kd only)",
+            m.name
+        ));
+    }
+    MaterialDoc::Diffuse(DiffuseDoc {
+        albedo: Some(clamp01(kd)),
+        texture: None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::import::DirSource;
+
+    fn limits() -> ImportLimits {
+        ImportLimits::from_scene(&crate::scene::Limits::command_line())
+    }
+
+    #[test]
+    fn mcguire_boxes_map_their_mtl() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/scenes-public/cornell-box-mcguire");
+        let src = DirSource { dir: dir.clone() };
+        let read = |f: &str| std::fs::read(dir.join(f)).unwrap();
+        let im = import(
+            "CornellBox-Original.obj",
+            &read("CornellBox-Original.obj"),
+            &src,
+            &limits(),
+        )
+        .unwrap();
+        assert!(matches!(
+            &im.doc.materials["light"],
+            MaterialDoc::Emissive(e) if e.radiance == [17.0, 12.0, 4.0]
+        ));
+        assert!(matches!(
+            &im.doc.materials["leftWall"],
+            MaterialDoc::Diffuse(d) if d.albedo == Some([0.63, 0.065, 0.05])
+        ));
+        let tris: usize = im
+            .doc
+            .objects
+            .iter()
+            .map(|o| match o {
+                ObjectDoc::Mesh(m) => m.indices.len(),
+                _ => 0,
+            })
+            .sum();
+        assert_eq!(tris, 36);
+        let mirror = import(
+            "CornellBox-Mirror.obj",
+            &read("CornellBox-Mirror.obj"),
+            &src,
+            &limits(),
+        )
+        .unwrap();
+        assert!(mirror
+            .doc
+            .materials
+            .values()
+            .any(|m| matches!(m, MaterialDoc::Mirror(_))));
+        let sphere = import(
+            "CornellBox-Sphere.obj",
+            &read("CornellBox-Sphere.obj"),
+            &src,
+            &limits(),
+        )
+        .unwrap();
+        assert!(sphere
+            .doc
+            .materials
+            .values()
+            .any(|m| matches!(m, MaterialDoc::Dielectric(d) if d.ior == 2.5)));
+    }
+
+    #[test]
+    fn an_mtl_outside_the_folder_is_not_read() {
+        let src = DirSource {
+            dir: std::env::temp_dir(),
+        };
+        let obj = b"mtllib ../../etc/passwd\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl x\nf 1 2 3\n";
+        let im = import("t.obj", obj, &src, &limits()).unwrap();
+        assert!(
+            im.warnings.iter().any(|w| w.contains("climbs out")),
+            "{:?}",
+            im.warnings
+        );
+        assert!(matches!(im.doc.objects[0], ObjectDoc::Mesh(_)));
+    }
+}

@@ -1,0 +1,166 @@
+//! pbrt-v4 import against references: Bitterli's Cornell box renders like Glimpse's own
+//! `scenes/cornell-box.json`, and the public scenes render like the Tungsten reference
+//! EXRs that come with them (display-range means: each channel clamped to [0, 1], the
+//! reference box-downsampled to the render's size). Renders run the real binary
+//! (`glimpse render FILE.pbrt --exr`), as a person would.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glimpse::cancel::CancelToken;
+use glimpse::import::load_path;
+use glimpse::scene::Limits;
+use glimpse::tracer::{render_reference, PathTracer};
+
+fn public(scene: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes-public")
+        .join(scene)
+}
+
+/// Mean linear RGB of a reference render (every pixel traced) of the scene at `path`,
+/// at `size`² with `spp` samples and `bounces` scattering events.
+fn mean_of(path: &Path, size: u32, spp: u32, bounces: u32) -> [f64; 3] {
+    let (mut scene, _) = load_path(path, &Limits::command_line()).unwrap();
+    scene.width = size;
+    scene.height = size;
+    scene.render.samples_per_pixel = spp;
+    scene.render.max_bounces = bounces;
+    let img = render_reference(&PathTracer::new(&scene), &CancelToken::new(), &|_, _| {}).unwrap();
+    let mut s = [0f64; 3];
+    for p in img.pixels() {
+        s[0] += f64::from(p.x);
+        s[1] += f64::from(p.y);
+        s[2] += f64::from(p.z);
+    }
+    s.map(|v| v / f64::from(size * size))
+}
+
+#[test]
+fn bitterli_cornell_box_renders_like_the_glimpse_document() {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let ours = mean_of(&repo.join("scenes/cornell-box.json"), 64, 256, 8);
+    let pbrt = mean_of(&public("cornell-box-bitterli/scene-v4.pbrt"), 64, 256, 8);
+    for c in 0..3 {
+        let rel = (pbrt[c] - ours[c]).abs() / ours[c];
+        assert!(
+            rel < 0.01,
+            "channel {c}: pbrt {pbrt:?} vs document {ours:?}"
+        );
+    }
+    eprintln!("cornell: pbrt {pbrt:?}, document {ours:?}");
+}
+
+/// Renders `scene` through the command line; the linear image and its size.
+fn render_cli(scene: &Path, w: u32, h: u32, spp: u32) -> (Vec<[f32; 3]>, u32, u32) {
+    let dir = tempfile::tempdir().unwrap();
+    let exr = dir.path().join("out.exr");
+    let out = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .arg("render")
+        .arg(scene)
+        .args(["--mode", "reference", "--spp", &spp.to_string()])
+        .args(["--size", &format!("{w}x{h}")])
+        .arg("--output")
+        .arg(dir.path().join("out.png"))
+        .arg("--exr")
+        .arg(&exr)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    read_exr(&exr)
+}
+
+fn read_exr(path: &Path) -> (Vec<[f32; 3]>, u32, u32) {
+    let img = image::open(path).unwrap().into_rgb32f();
+    let (w, h) = img.dimensions();
+    (img.pixels().map(|p| p.0).collect(), w, h)
+}
+
+/// The mean over pixels of each channel clamped to [0, 1], after box-averaging `img`
+/// (w×h) down to `tw`×`th`; over the rows in `rows` (fractions of the height) only.
+fn display_mean(
+    img: &[[f32; 3]],
+    (w, h): (u32, u32),
+    (tw, th): (u32, u32),
+    rows: std::ops::Range<f64>,
+) -> [f64; 3] {
+    let (fx, fy) = (w / tw, h / th);
+    assert_eq!((fx * tw, fy * th), (w, h), "sizes must divide");
+    let (r0, r1) = (
+        (rows.start * f64::from(th)) as u32,
+        (rows.end * f64::from(th)) as u32,
+    );
+    let mut s = [0f64; 3];
+    for ty in r0..r1 {
+        for tx in 0..tw {
+            let mut b = [0f64; 3];
+            for y in ty * fy..(ty + 1) * fy {
+                for x in tx * fx..(tx + 1) * fx {
+                    let p = img[(y * w + x) as usize];
+                    for c in 0..3 {
+                        b[c] += f64::from(p[c]);
+                    }
+                }
+            }
+            for c in 0..3 {
+                s[c] += (b[c] / f64::from(fx * fy)).clamp(0.0, 1.0);
+            }
+        }
+    }
+    s.map(|v| v / f64::from(tw * (r1 - r0)))
+}
+
+/// The render's display-range mean against the Tungsten reference's over `rows`; the
+/// worst relative channel difference.
+fn against_tungsten(folder: &str, w: u32, h: u32, spp: u32, rows: std::ops::Range<f64>) -> f64 {
+    let dir = public(folder);
+    let (ours, ow, oh) = render_cli(&dir.join("scene-v4.pbrt"), w, h, spp);
+    let (refr, rw, rh) = read_exr(&dir.join("TungstenRender.exr"));
+    let a = display_mean(&ours, (ow, oh), (w, h), rows.clone());
+    let b = display_mean(&refr, (rw, rh), (w, h), rows.clone());
+    let worst = (0..3)
+        .map(|c| (a[c] - b[c]).abs() / b[c])
+        .fold(0.0, f64::max);
+    eprintln!(
+        "{folder}, rows {rows:?}: Glimpse {a:.4?} vs Tungsten {b:.4?}: worst channel {:.1} %",
+        worst * 100.0
+    );
+    worst
+}
+
+#[test]
+fn cornell_box_matches_the_tungsten_reference() {
+    let d = against_tungsten("cornell-box-bitterli", 64, 64, 128, 0.0..1.0);
+    assert!(d < 0.05, "{d}");
+}
+
+/// The wall and the lights (the top 30 % of the image) match. Over the whole image the
+/// import is 35 % brighter: its plates reflect the lit back wall, which the pbrt file
+/// places where the plates see it (up to y = 19.8) and Tungsten's render shows black. An
+/// independent renderer agrees with Glimpse on the imported scene (Mitsuba 3 through
+/// scripts/peer_import.py: within 0.4 %, README), so the difference is in the file.
+#[test]
+fn veach_mis_matches_the_tungsten_reference_where_the_scenes_agree() {
+    let d = against_tungsten("veach-mis-bitterli", 128, 72, 64, 0.0..0.3);
+    assert!(d < 0.05, "{d}");
+    let whole = against_tungsten("veach-mis-bitterli", 128, 72, 64, 0.0..1.0);
+    assert!(whole.is_finite());
+}
+
+#[test]
+fn veach_bidir_matches_the_tungsten_reference() {
+    let d = against_tungsten("veach-bidir-bitterli", 64, 64, 256, 0.0..1.0);
+    assert!(d < 0.15, "{d}");
+}
+
+/// Reported, not bounded: the pbrt conversion lacks the reference's floor texture and
+/// two of its textures (scenes-public/README.md).
+#[test]
+fn veach_ajar_is_reported_against_the_tungsten_reference() {
+    let d = against_tungsten("veach-ajar-bitterli", 128, 72, 64, 0.0..1.0);
+    assert!(d.is_finite());
+}
