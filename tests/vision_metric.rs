@@ -218,6 +218,43 @@ fn leaves_hold_every_sample_once_and_paint_their_mean() {
     );
 }
 
+#[test]
+fn a_tree_that_would_evaluate_most_pixels_evaluates_them_all_exactly() {
+    let (w, h) = (256, 256);
+    let m = model(w, h);
+    let a = noisy(&textured(w, h), 0.4, 4, |_, _| true);
+    let b = noisy(&textured(w, h), 0.4, 5, |_, _| true);
+    let (sa, sb) = stacks(&m, &a, &b);
+    // A strict homogeneity test on a noisy pair keeps every cell splitting.
+    let p = MetricParams {
+        homogeneity: 0.95,
+        epsilon: 0.3,
+        seed: 99,
+    };
+    let sparse = metric::block_map_sparse(&m, &sa, &sb, &[], &p);
+    assert!(
+        sparse.pixels_evaluated as f64 > metric::DENSE_SHARE * f64::from(w * h),
+        "the pair must be noisy enough: {}",
+        sparse.pixels_evaluated
+    );
+    let bm = metric::block_map(&m, &sa, &sb, &[], &p);
+    let held: usize = bm.leaves.iter().map(|l| l.samples as usize).sum();
+    assert_eq!(held, bm.pixels_evaluated, "nothing is evaluated twice");
+    let full = m.full_map(&sa, &sb);
+    let mut dense = 0;
+    for l in &bm.leaves {
+        if u64::from(l.samples) == u64::from(l.width * l.height) {
+            dense += usize::from(l.width * l.height > 1);
+            for y in l.y..l.y + l.height {
+                for x in l.x..l.x + l.width {
+                    assert_eq!(bm.map.get(x, y), full.get(x, y), "exact at ({x}, {y})");
+                }
+            }
+        }
+    }
+    assert!(dense > 0, "the rest was evaluated densely");
+}
+
 /// Bit-for-bit comparison of two block maps (map bits, leaves, pixel count).
 fn assert_same(got: &metric::DistanceMap, want: &metric::DistanceMap, what: &str) {
     assert_eq!(
@@ -264,7 +301,7 @@ fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
                     epsilon,
                     seed,
                 };
-                let got = metric::block_map(&m, &sa, &sb, seeds, &p);
+                let got = metric::block_map_sparse(&m, &sa, &sb, seeds, &p);
                 let want = metric::reference::block_map_reference(&m, &sa, &sb, seeds, &p);
                 let what = format!("{w}x{h}, {} seeds, {p:?}", seeds.len());
                 assert_same(&got, &want, &what);

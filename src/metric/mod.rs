@@ -144,6 +144,30 @@ pub fn block_map(
     seeds: &[PixelCoord],
     params: &MetricParams,
 ) -> DistanceMap {
+    quad_tree(model, a, b, seeds, params, DENSE_SHARE)
+}
+
+/// [`block_map`] without its dense fallback: the quad-tree of vision-model.md §3 however
+/// many pixels it evaluates (what the tests compare with the naive reference algorithm).
+#[must_use]
+pub fn block_map_sparse(
+    model: &VisionModel,
+    a: &ContrastStack,
+    b: &ContrastStack,
+    seeds: &[PixelCoord],
+    params: &MetricParams,
+) -> DistanceMap {
+    quad_tree(model, a, b, seeds, params, f64::INFINITY)
+}
+
+fn quad_tree(
+    model: &VisionModel,
+    a: &ContrastStack,
+    b: &ContrastStack,
+    seeds: &[PixelCoord],
+    params: &MetricParams,
+    dense_share: f64,
+) -> DistanceMap {
     let (w, h) = (a.width().min(b.width()), a.height().min(b.height()));
     let mut map = Image::filled(w, h, 0f32);
     if w == 0 || h == 0 {
@@ -216,8 +240,9 @@ pub fn block_map(
                     .min((c.area() as usize).saturating_sub(have))
             })
             .sum();
-        if (evaluated + planned) as f64 > DENSE_SHARE * n as f64 {
-            evaluated += evaluate_densely(model, a, b, &frontier, &mut map, &mut leaves, eps);
+        if (evaluated + planned) as f64 > dense_share * n as f64 {
+            evaluated +=
+                evaluate_densely(model, a, b, &frontier, &taken, &mut map, &mut leaves, eps);
             break;
         }
         // 1. Choose each cell's new samples (same draws, same order as the reference).
@@ -370,34 +395,44 @@ pub fn block_map(
 
 /// Share of the image beyond which the quad-tree stops and evaluates every pixel of the
 /// cells it has left (the tree's own work then outweighs what it saves).
-pub const DENSE_SHARE: f64 = 0.5;
+pub const DENSE_SHARE: f64 = 0.4;
 
-/// Every pixel of `cells` evaluated and written exactly into `map`, one leaf per cell;
-/// returns the number of pixels evaluated.
+/// Every pixel of `cells` evaluated (those not yet in a cell's samples, `taken`) and
+/// written exactly into `map`, one leaf per cell; returns the number of pixels evaluated.
+#[allow(clippy::too_many_arguments)]
 fn evaluate_densely(
     model: &VisionModel,
     a: &ContrastStack,
     b: &ContrastStack,
     cells: &[Cell],
+    taken: &[bool],
     map: &mut Image<f32>,
     leaves: &mut Vec<Leaf>,
     eps: f64,
 ) -> usize {
+    let w = map.width() as usize;
     let mut coords: Vec<PixelCoord> = Vec::new();
-    let mut ranges = Vec::with_capacity(cells.len());
     for c in cells {
-        let start = coords.len();
         for y in c.y..c.y + c.h {
-            coords.extend((c.x..c.x + c.w).map(|x| PixelCoord::new(x, y)));
+            coords.extend(
+                (c.x..c.x + c.w)
+                    .map(|x| PixelCoord::new(x, y))
+                    .filter(|p| !taken[p.y as usize * w + p.x as usize]),
+            );
         }
-        ranges.push(start..coords.len());
     }
     let mut values = vec![0f32; coords.len()];
     model.distances_at(a, b, &coords, &mut values);
-    for (c, r) in cells.iter().zip(ranges) {
-        let v = &values[r.clone()];
-        for (&p, &d) in coords[r].iter().zip(v) {
+    for (&p, &d) in coords.iter().zip(&values) {
+        map.set(p.x, p.y, d);
+    }
+    for c in cells {
+        for &(p, d) in &c.samples {
             map.set(p.x, p.y, d);
+        }
+        let mut v = Vec::with_capacity(c.area() as usize);
+        for y in c.y..c.y + c.h {
+            v.extend((c.x..c.x + c.w).map(|x| *map.get(x, y)));
         }
         let k = v.len().max(1) as f64;
         let mean = v.iter().map(|&d| f64::from(d)).sum::<f64>() / k;

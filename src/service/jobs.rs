@@ -147,15 +147,16 @@ pub struct LiveFrame {
     /// The other layers' PNGs and the EXR ([`OTHER_ENCODINGS`]), likewise encoded once when
     /// first asked for and shared by every request and the final files: one encoding per
     /// frame, not one per request (a 4096² EXR is 201 MB).
-    others: [std::sync::OnceLock<Result<Option<Bytes>, String>>; 4],
+    others: [std::sync::OnceLock<Result<Option<Bytes>, String>>; OTHER_ENCODINGS.len()],
     metrics: Arc<Metrics>,
 }
 
 /// The encodings [`LiveFrame::encoded`] caches besides the image PNG: (layer, EXR?).
-const OTHER_ENCODINGS: [(&str, bool); 4] = [
+const OTHER_ENCODINGS: [(&str, bool); 5] = [
     ("samples", false),
     ("distance", false),
     ("classes", false),
+    ("objects", false),
     ("image", true),
 ];
 
@@ -1193,6 +1194,7 @@ mod tests {
             f.samples = Image::filled(scene.width, scene.height, SampleCell::Traced);
             f.classes = Image::filled(scene.width, scene.height, ClassCell::Smooth);
             f.distance = Some(Image::filled(scene.width, scene.height, 0.5));
+            f.objects = Arc::new(Image::filled(scene.width, scene.height, 0));
             on_frame(&f);
         }
         Ok(f)
