@@ -93,7 +93,11 @@ pub fn vertex_values(
     guide(&mut nodes, &adjacency);
     let smoothed: Vec<Rgb> = (0..nodes.len())
         .into_par_iter()
-        .map(|k| smooth(k, &nodes, &adjacency, ppd))
+        .with_min_len(2048)
+        .map_init(
+            || Visited::new(nodes.len()),
+            |visited, k| smooth(k, &nodes, &adjacency, ppd, visited),
+        )
         .collect();
     for (node, v) in nodes.iter().zip(smoothed) {
         out[node.pixel] = v;
@@ -122,7 +126,7 @@ fn graph(
 ) -> (Vec<Node>, Adjacency) {
     let at = |p: crate::raster::PixelCoord| p.y as usize * w + p.x as usize;
     let mut pixels: Vec<usize> = tris.iter().flat_map(|t| t.v.map(at)).collect();
-    pixels.sort_unstable();
+    pixels.par_sort_unstable();
     pixels.dedup();
     let number = |p: usize| pixels.binary_search(&p).map_or(u32::MAX, |k| k as u32);
     let mut area = vec![0f64; pixels.len()];
@@ -139,7 +143,7 @@ fn graph(
             edges.push((v, u));
         }
     }
-    edges.sort_unstable();
+    edges.par_sort_unstable();
     edges.dedup();
     let mut start = vec![0u32; pixels.len() + 1];
     for &(u, _) in &edges {
@@ -204,7 +208,47 @@ fn guide(nodes: &mut [Node], adj: &Adjacency) {
 
 /// The bilateral mean around vertex `k`, ring by ring until the effective number of
 /// vertices averaged, (Σw)² / Σw², reaches [`target_count`].
-fn smooth(k: usize, nodes: &[Node], adj: &Adjacency, ppd: f32) -> Rgb {
+/// Which vertices one search has already met: a stamp per vertex, so a search costs
+/// what it visits, not a scan of its list per neighbour (rings of 100 vertices).
+struct Visited {
+    stamp: Vec<u32>,
+    current: u32,
+    /// The ring being expanded and the next one (kept to reuse their allocations).
+    ring: Vec<u32>,
+    next: Vec<u32>,
+}
+
+impl Visited {
+    fn new(n: usize) -> Self {
+        Self {
+            stamp: vec![0; n],
+            current: 0,
+            ring: Vec::new(),
+            next: Vec::new(),
+        }
+    }
+
+    /// Starts a new search (forgets every vertex met).
+    fn clear(&mut self) {
+        self.current = self.current.wrapping_add(1);
+        if self.current == 0 {
+            self.stamp.fill(0);
+            self.current = 1;
+        }
+    }
+
+    /// Marks `k`; false if it was already met in this search.
+    fn insert(&mut self, k: u32) -> bool {
+        let s = &mut self.stamp[k as usize];
+        if *s == self.current {
+            return false;
+        }
+        *s = self.current;
+        true
+    }
+}
+
+fn smooth(k: usize, nodes: &[Node], adj: &Adjacency, ppd: f32, visited: &mut Visited) -> Rgb {
     let me = nodes[k];
     let own = |v: Rgb| me.albedo.map_or(v, |a| v * a);
     let target = target_count(ppd, me.area);
@@ -212,16 +256,19 @@ fn smooth(k: usize, nodes: &[Node], adj: &Adjacency, ppd: f32) -> Rgb {
         return own(me.value);
     }
     let (mut sum, mut sw, mut sw2) = (me.value, 1f64, 1f64);
-    let mut seen: Vec<u32> = vec![k as u32];
-    let mut ring: Vec<u32> = vec![k as u32];
+    visited.clear();
+    visited.insert(k as u32);
+    let mut ring = std::mem::take(&mut visited.ring);
+    let mut next = std::mem::take(&mut visited.next);
+    ring.clear();
+    ring.push(k as u32);
     for _ in 0..MAX_RINGS {
-        let mut next = Vec::new();
+        next.clear();
         for &u in &ring {
             for &v in adj.of(u as usize) {
-                if nodes[v as usize].id != me.id || seen.contains(&v) {
+                if nodes[v as usize].id != me.id || !visited.insert(v) {
                     continue;
                 }
-                seen.push(v);
                 next.push(v);
                 let o = nodes[v as usize];
                 let wgt = range_weight(me.guide - o.guide, me.guide_variance + o.guide_variance);
@@ -233,8 +280,10 @@ fn smooth(k: usize, nodes: &[Node], adj: &Adjacency, ppd: f32) -> Rgb {
         if next.is_empty() || sw * sw / sw2 >= target {
             break;
         }
-        ring = next;
+        std::mem::swap(&mut ring, &mut next);
     }
+    visited.ring = ring;
+    visited.next = next;
     own(sum / sw as f32)
 }
 
