@@ -144,43 +144,17 @@ impl Bsdf {
                 })
             }
             Bsdf::Glossy { albedo, alpha } => {
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let h = sample_ggx_vndf(wo, alpha, u);
-                let wi = reflect(wo, h);
-                if wi.z <= 0.0 {
-                    return None;
-                }
-                let lo = ggx_lambda(wo, alpha);
-                let g2 = 1.0 / (1.0 + lo + ggx_lambda(wi, alpha));
-                let g1o = 1.0 / (1.0 + lo);
-                let pdf = g1o * ggx_d(h, alpha) / (4.0 * wo.z);
+                let (s, _) = sample_ggx_reflection(wo, alpha, u)?;
                 Some(BsdfSample {
-                    wi,
-                    weight: albedo * (g2 / g1o),
-                    pdf,
-                    delta: false,
+                    weight: albedo * s.weight,
+                    ..s
                 })
             }
             Bsdf::Conductor { eta, k, alpha } => {
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let h = sample_ggx_vndf(wo, alpha, u);
-                let wi = reflect(wo, h);
-                if wi.z <= 0.0 {
-                    return None;
-                }
-                let lo = ggx_lambda(wo, alpha);
-                let g2 = 1.0 / (1.0 + lo + ggx_lambda(wi, alpha));
-                let g1o = 1.0 / (1.0 + lo);
-                let f = fresnel_conductor(wo.dot(h), eta, k);
+                let (s, h) = sample_ggx_reflection(wo, alpha, u)?;
                 Some(BsdfSample {
-                    wi,
-                    weight: f * (g2 / g1o),
-                    pdf: g1o * ggx_d(h, alpha) / (4.0 * wo.z),
-                    delta: false,
+                    weight: fresnel_conductor(wo.dot(h), eta, k) * s.weight,
+                    ..s
                 })
             }
             Bsdf::MetalRough {
@@ -406,6 +380,30 @@ fn ggx_lambda(w: Vec3, alpha: f32) -> f32 {
     }
     let tan2 = s2 / c2;
     0.5 * (-1.0 + (1.0 + alpha * alpha * tan2).sqrt())
+}
+
+/// A GGX reflection sampled through the visible normals (height-correlated Smith): the
+/// sample with the Fresnel-free weight G2/G1(wo) and its pdf, and the half vector for the
+/// caller's Fresnel term. `None` below the surface.
+fn sample_ggx_reflection(wo: Vec3, alpha: f32, u: Vec2) -> Option<(BsdfSample, Vec3)> {
+    if wo.z <= 0.0 {
+        return None;
+    }
+    let h = sample_ggx_vndf(wo, alpha, u);
+    let wi = reflect(wo, h);
+    if wi.z <= 0.0 {
+        return None;
+    }
+    let lo = ggx_lambda(wo, alpha);
+    let g2 = 1.0 / (1.0 + lo + ggx_lambda(wi, alpha));
+    let g1o = 1.0 / (1.0 + lo);
+    let sample = BsdfSample {
+        wi,
+        weight: Vec3::splat(g2 / g1o),
+        pdf: g1o * ggx_d(h, alpha) / (4.0 * wo.z),
+        delta: false,
+    };
+    Some((sample, h))
 }
 
 /// Samples a visible normal (Heitz 2018, "Sampling the GGX Distribution of Visible
