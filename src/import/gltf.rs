@@ -17,8 +17,8 @@ use glam::{Mat3, Mat4, Vec3};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, DirectionalLightDoc, DisplayDoc, EmissiveDoc, ImageDoc, LightDoc, MaterialDoc,
-    MeshDoc, MetallicRoughnessDoc, ObjectDoc, PointLightDoc, ProgressiveDoc, RenderDoc, SceneDoc,
+    CameraDoc, DirectionalLightDoc, EmissiveDoc, LightDoc, MaterialDoc, MeshDoc,
+    MetallicRoughnessDoc, ObjectDoc, PointLightDoc, SceneDoc,
 };
 
 /// Node trees deeper than this are refused (glTF forbids cycles; this also bounds them).
@@ -603,19 +603,10 @@ impl Gltf<'_> {
             ((a * height as f32).round() as u64).clamp(1, 16384)
         });
         let doc = SceneDoc {
-            version: 1,
-            name: std::path::Path::new(self.name)
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .map(str::to_string),
-            image: ImageDoc { width, height },
-            camera,
-            display: DisplayDoc::default(),
             materials: self.materials,
             objects: self.objects,
             lights: self.lights,
-            render: RenderDoc::default(),
-            progressive: ProgressiveDoc::default(),
+            ..super::document(self.name, width, height, camera)
         };
         Ok(Imported {
             doc,

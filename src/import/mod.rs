@@ -188,6 +188,27 @@ pub fn import(
     Ok(imported)
 }
 
+/// The document an importer fills in: named after the file's stem, `width`×`height`,
+/// seen by `camera`, with default display, render and progressive settings and no
+/// materials, objects or lights yet.
+pub(crate) fn document(file: &str, width: u64, height: u64, camera: CameraDoc) -> SceneDoc {
+    SceneDoc {
+        version: 1,
+        name: Path::new(file)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .map(str::to_string),
+        image: crate::scene::doc::ImageDoc { width, height },
+        camera,
+        display: crate::scene::doc::DisplayDoc::default(),
+        materials: std::collections::BTreeMap::new(),
+        objects: Vec::new(),
+        lights: Vec::new(),
+        render: crate::scene::doc::RenderDoc::default(),
+        progressive: crate::scene::doc::ProgressiveDoc::default(),
+    }
+}
+
 /// What a file lacks, supplied with one warning each (scene-import.md "Command line"): a
 /// camera that frames the scene's bounds from the front (the importer leaves a zero
 /// `fov_y` when the file has none), and a constant white environment when nothing emits.

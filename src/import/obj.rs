@@ -14,8 +14,8 @@ use std::io::BufReader;
 
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, DielectricDoc, DiffuseDoc, DisplayDoc, EmissiveDoc, GlossyDoc, ImageDoc,
-    MaterialDoc, MeshDoc, MirrorDoc, ObjectDoc, ProgressiveDoc, RenderDoc, SceneDoc,
+    CameraDoc, DielectricDoc, DiffuseDoc, EmissiveDoc, GlossyDoc, MaterialDoc, MeshDoc, MirrorDoc,
+    ObjectDoc, SceneDoc,
 };
 
 pub fn import(
@@ -115,28 +115,16 @@ pub fn import(
             transform: None,
         }));
     }
+    let camera = CameraDoc {
+        position: [0.0; 3],
+        look_at: [0.0, 0.0, -1.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y: 0.0,
+    };
     let doc = SceneDoc {
-        version: 1,
-        name: std::path::Path::new(name)
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .map(str::to_string),
-        image: ImageDoc {
-            width: 512,
-            height: 512,
-        },
-        camera: CameraDoc {
-            position: [0.0; 3],
-            look_at: [0.0, 0.0, -1.0],
-            up: [0.0, 1.0, 0.0],
-            fov_y: 0.0,
-        },
-        display: DisplayDoc::default(),
         materials,
         objects,
-        lights: Vec::new(),
-        render: RenderDoc::default(),
-        progressive: ProgressiveDoc::default(),
+        ..super::document(name, 512, 512, camera)
     };
     Ok(Imported { doc, warnings })
 }

@@ -28,9 +28,9 @@ use self::params::{Params, Values};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc, DisplayDoc,
-    EmissiveDoc, EnvironmentLightDoc, ImageDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc,
-    PointLightDoc, ProgressiveDoc, RenderDoc, SceneDoc, SphereDoc,
+    CameraDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc, EmissiveDoc,
+    EnvironmentLightDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc, PointLightDoc, RenderDoc,
+    SceneDoc, SphereDoc,
 };
 
 /// Includes may nest this deep (a file including itself is refused here).
@@ -1125,17 +1125,6 @@ impl Importer<'_> {
             self.warnings.push(format!("{name}: area lights' own surfaces reflect nothing in Glimpse (pbrt adds their material's reflection)"));
         }
         let doc = SceneDoc {
-            version: 1,
-            name: std::path::Path::new(name)
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .map(str::to_string),
-            image: ImageDoc {
-                width: self.size.0,
-                height: self.size.1,
-            },
-            camera,
-            display: DisplayDoc::default(),
             materials: self.materials,
             objects,
             lights: self.lights,
@@ -1144,7 +1133,7 @@ impl Importer<'_> {
                 max_bounces: self.max_depth,
                 ..RenderDoc::default()
             },
-            progressive: ProgressiveDoc::default(),
+            ..crate::import::document(name, self.size.0, self.size.1, camera)
         };
         Ok(Imported {
             doc,
