@@ -116,18 +116,8 @@ impl Server {
 
     /// Polls until the job is in one of `states`.
     async fn wait_state(&self, id: &str, states: &[&str], within: Duration) -> Value {
-        let deadline = Instant::now() + within;
-        loop {
-            let j = self.job(id).await;
-            if states.iter().any(|s| j["state"] == *s) {
-                return j;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "job {id} never reached {states:?}: {j}"
-            );
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
+        let base = format!("http://{}", self.addr);
+        common::wait_states(&self.client, &base, id, states, within).await
     }
 }
 

@@ -44,18 +44,7 @@ impl Srv {
 
     /// Polls until the job is in one of `states`; its object.
     async fn until(&self, id: &str, states: &[&str], within: Duration) -> Value {
-        let deadline = Instant::now() + within;
-        loop {
-            let j = self.job(id).await;
-            if states.iter().any(|s| j["state"] == *s) {
-                return j;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "job never reached {states:?}: {j}"
-            );
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
+        common::wait_states(&self.c, &self.base, id, states, within).await
     }
 }
 

@@ -147,9 +147,27 @@ pub fn sphere_scene(
 
 /// Polls the job until its state is `state`; fails after `within`.
 pub async fn wait_state(c: &reqwest::Client, base: &str, id: &str, state: &str, within: Duration) {
+    wait_states(c, base, id, &[state], within).await;
+}
+
+/// Polls the job until its state is one of `states`; its object. Fails after `within`.
+pub async fn wait_states(
+    c: &reqwest::Client,
+    base: &str,
+    id: &str,
+    states: &[&str],
+    within: Duration,
+) -> serde_json::Value {
     let deadline = Instant::now() + within;
-    while job(c, base, id).await["state"] != state {
-        assert!(Instant::now() < deadline, "job {id} never reached {state}");
+    loop {
+        let j = job(c, base, id).await;
+        if states.iter().any(|s| j["state"] == *s) {
+            return j;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "job {id} never reached {states:?}: {j}"
+        );
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
 }
