@@ -58,7 +58,7 @@ pub fn noise_discounted(
     samples
         .into_iter()
         .map(|(v, var, id)| {
-            let reach = (var * 4.0).powf(0.5);
+            let reach = var.map(f32::sqrt) * 2.0;
             let d = v - mean;
             let shrunk = d.signum() * (d.abs() - reach).max(Rgb::ZERO);
             let moved = mean + shrunk;

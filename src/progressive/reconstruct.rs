@@ -27,7 +27,7 @@
 //! same demodulation as `mesh::gouraud`). An exact oracle (variance 0) gets F&P04's
 //! interpolation unchanged: no neighbour is similar enough to be averaged.
 
-use super::mesh::Tri;
+use super::mesh::{Tri, MIN_ALBEDO};
 use crate::raster::Rgb;
 use crate::scene::ObjectId;
 use rayon::prelude::*;
@@ -44,9 +44,6 @@ const RANGE_SIGMAS: f32 = 2.0;
 
 /// Rings of the Delaunay graph searched at most (a vertex has ~6 neighbours per ring).
 const MAX_RINGS: usize = 6;
-
-/// Albedo below which radiance ÷ albedo is not trusted (as in `mesh::MIN_ALBEDO`).
-use super::mesh::MIN_ALBEDO;
 
 /// Effective number of vertices to average at a vertex whose surroundings hold one vertex
 /// per `area` pixels, shown at `ppd` pixels per degree (the module's derivation).
