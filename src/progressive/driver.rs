@@ -15,7 +15,7 @@ use super::noise::{
     signal_distance, spans_contour, triangle_noise, visible_discontinuity, NoiseLevel, Twin,
     NOISE_SCALE, TWIN_SEED,
 };
-use super::reconstruct::vertex_values;
+use super::reconstruct::{vertex_values, Samples};
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -191,6 +191,12 @@ struct Run<'a, O: PixelOracle> {
     variance: Vec<Rgb>,
     /// What each vertex contributes to the shading ([`super::reconstruct`]).
     vertex: Vec<Rgb>,
+    /// Surface normal at each pixel centre ([`PixelOracle::surface_normal`]), which keeps
+    /// the reconstruction on one face of an object.
+    normals: Vec<glam::Vec3>,
+    /// Whether each vertex's reconstruction reached its target count; a triangle with an
+    /// unresolved vertex is not final ([`super::reconstruct`]).
+    resolved: Vec<bool>,
     /// Texture albedo per pixel (textured scenes only): the [`tracer::ALBEDO_TAPS`] mean
     /// where untraced, the traced estimate's own albedo where traced (mesh.rs `gouraud`).
     albedo: Option<Vec<Option<Rgb>>>,
@@ -322,16 +328,16 @@ impl<O: PixelOracle> Run<'_, O> {
     ) {
         let all = self.traced_count as usize == self.n;
         if !all {
-            vertex_values(
-                tris,
-                self.w as usize,
-                &self.rad,
-                &self.variance,
+            let samples = Samples {
+                w: self.w as usize,
+                radiance: &self.rad,
+                variance: &self.variance,
                 ids,
-                self.albedo.as_deref(),
-                self.s.pixels_per_degree,
-                &mut self.vertex,
-            );
+                normals: &self.normals,
+                albedo: self.albedo.as_deref(),
+                pixels_per_degree: self.s.pixels_per_degree,
+            };
+            vertex_values(tris, &samples, &mut self.vertex, &mut self.resolved);
         }
         let input = ShadeInput {
             radiance: &self.rad,
@@ -341,6 +347,13 @@ impl<O: PixelOracle> Run<'_, O> {
             ids: Some(ids),
         };
         gouraud(tris, raster, tri, &input, out);
+    }
+
+    /// Whether every vertex of `tr` reached its reconstruction's target count.
+    fn is_resolved(&self, tr: &Tri) -> bool {
+        let w = self.w as usize;
+        tr.v.iter()
+            .all(|p| self.resolved[p.y as usize * w + p.x as usize])
     }
 
     fn push(&mut self, i: usize, work: &mut Vec<usize>) -> bool {
@@ -404,6 +417,8 @@ pub fn run<O: PixelOracle>(
         rad: vec![Rgb::ZERO; n],
         variance: vec![Rgb::ZERO; n],
         vertex: vec![Rgb::ZERO; n],
+        normals: Vec::new(),
+        resolved: vec![true; n],
         albedo: None,
         traced: vec![false; n],
         when: vec![u32::MAX; n],
@@ -426,6 +441,7 @@ pub fn run<O: PixelOracle>(
     // §4.1: object ids (one primary ray per pixel), contour map, first sample set.
     let t = Instant::now();
     let ids: Arc<Image<ObjectId>> = Arc::new(tracer::object_id_map(oracle));
+    r.normals = tracer::normal_map(oracle);
     let seeds = initial_samples(&ids, s.initial_rate, s.seed);
     r.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
 
@@ -625,6 +641,17 @@ pub fn run<O: PixelOracle>(
                 if classes[t] == TriangleClass::Final {
                     classes[t] = TriangleClass::Smooth;
                 }
+            }
+            // Noise the reconstruction could not average away without bias is error the
+            // frame-to-frame distance cannot see (both frames carry it): refine there, down
+            // to F&P04's smallest triangles (below them vertices are pixels apart, and what
+            // stays unresolved is an image border, a silhouette or an outlier path that
+            // more vertices around it do not fix).
+            if classes[t] == TriangleClass::Final
+                && tr.longest_edge() >= FULL_TRACE_BELOW
+                && !r.is_resolved(tr)
+            {
+                classes[t] = TriangleClass::Smooth;
             }
             match classes[t] {
                 TriangleClass::Final => {}

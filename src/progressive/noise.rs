@@ -123,6 +123,9 @@ impl<O: PixelOracle> PixelOracle for Twin<'_, O> {
     fn object_id(&self, p: PixelCoord) -> ObjectId {
         self.inner.object_id(p)
     }
+    fn surface_normal(&self, p: PixelCoord) -> glam::Vec3 {
+        self.inner.surface_normal(p)
+    }
 }
 
 /// Per pixel, the Monte Carlo noise amplitude of a traced value as the display shows it:

@@ -36,6 +36,12 @@ pub trait PixelOracle: Sync {
     /// Id of the object hit by the ray through the pixel centre ([`crate::scene::BACKGROUND_ID`]
     /// on a miss): one ray per pixel, for the contour map of §4.1.
     fn object_id(&self, p: PixelCoord) -> ObjectId;
+    /// The shading normal, facing the camera, where the ray through the pixel centre meets
+    /// a surface; zero on a miss or where the oracle cannot tell. The reconstruction keeps
+    /// the faces of one object apart with it (a box's faces share its id).
+    fn surface_normal(&self, _p: PixelCoord) -> glam::Vec3 {
+        glam::Vec3::ZERO
+    }
     /// The albedo of the textured Lambertian surface the pixel sees, averaged over its
     /// footprint (up to the 4 [`ALBEDO_TAPS`] camera rays), or `None` where any of them sees
     /// something else (another material, the background). Radiance leaving a Lambertian
@@ -221,6 +227,11 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     let (w, h) = oracle.size();
     let data = every_pixel(oracle, |p| oracle.object_id(p));
     Image::from_vec(w, h, data).expect("size matches by construction")
+}
+
+/// [`PixelOracle::surface_normal`] at every pixel, row-major.
+pub fn normal_map(oracle: &impl PixelOracle) -> Vec<Vec3> {
+    every_pixel(oracle, |p| oracle.surface_normal(p))
 }
 
 /// `f` at every pixel of the oracle's image, row-major, in parallel.
@@ -578,6 +589,18 @@ impl PixelOracle for PathTracer {
         self.camera_hit(p.x, p.y, d)
             .and_then(|h| self.geo.info.get(h.prim as usize))
             .map_or(BACKGROUND_ID, |i| i.object)
+    }
+
+    fn surface_normal(&self, p: PixelCoord) -> Vec3 {
+        let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
+        self.camera_hit(p.x, p.y, d).map_or(Vec3::ZERO, |h| {
+            let n = self.geo.surface(self.camera.origin, d, &h).ns;
+            if n.dot(d) > 0.0 {
+                -n
+            } else {
+                n
+            }
+        })
     }
 }
 
