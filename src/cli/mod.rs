@@ -5,6 +5,7 @@ pub mod compare;
 pub mod convert;
 pub mod render;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -25,21 +26,27 @@ pub enum Command {
     Serve(ServeArgs),
     /// Render one scene without a server.
     Render(render::RenderArgs),
-    /// Import a scene (.pbrt) and write the scene document Glimpse understood.
+    /// Import a scene (.pbrt, .gltf, .glb, .obj) and write the scene document Glimpse
+    /// understood.
     Convert(convert::ConvertArgs),
-    /// Perceptual distance between two images.
+    /// Perceptual distance between two images, in JNDs (just-noticeable differences).
     Compare(compare::CompareArgs),
-    /// The speed-versus-accuracy study.
+    /// The speed-versus-accuracy study (runs anywhere: the examples are built in).
     Bench(BenchArgs),
 }
 
 #[derive(clap::Args, Debug)]
 pub struct ServeArgs {
-    #[arg(long, default_value = "127.0.0.1:8080")]
+    /// Address and port to listen on (HTTP and WebSocket; the viewer is at `/`). Beyond
+    /// loopback, set a token.
+    #[arg(long, default_value = "127.0.0.1:8080", value_name = "IP:PORT")]
     pub addr: String,
-    #[arg(long, default_value = "./glimpse-data")]
+    /// Folder for the job database and every job's images (created if missing).
+    #[arg(long, default_value = "./glimpse-data", value_name = "DIR")]
     pub data: PathBuf,
-    #[arg(long, default_value_t = 1)]
+    /// Jobs rendered at once; each render uses every core, so more than 1 only helps
+    /// short jobs wait less behind long ones.
+    #[arg(long, default_value_t = 1, value_name = "N")]
     pub workers: usize,
     /// Require `Authorization: Bearer TOKEN` on every /v1 call.
     #[arg(long, env = "GLIMPSE_TOKEN")]
@@ -91,9 +98,12 @@ impl Cli {
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    #[arg(long, default_value = "scenes")]
-    pub scenes: PathBuf,
-    #[arg(long, default_value = "bench-out")]
+    /// A folder of scene documents (*.json) to study. Default: the five examples built
+    /// into the binary (the project's `scenes/`), so the bench runs from any folder.
+    #[arg(long, value_name = "DIR")]
+    pub scenes: Option<PathBuf>,
+    /// Where the report (report.md, results.json, plots) is written.
+    #[arg(long, default_value = "bench-out", value_name = "DIR")]
     pub out: PathBuf,
     /// Small sizes that fit in CI.
     #[arg(long)]
@@ -227,7 +237,11 @@ async fn shutdown_signal() {
 }
 
 fn bench(a: &BenchArgs) -> anyhow::Result<()> {
-    let mut cfg = crate::bench::BenchConfig::new(a.scenes.clone(), a.out.clone(), a.quick);
+    let scenes = match &a.scenes {
+        Some(dir) => dir.clone(),
+        None => write_builtin_examples(&a.out)?,
+    };
+    let mut cfg = crate::bench::BenchConfig::new(scenes, a.out.clone(), a.quick);
     cfg.spp_factor = a.spp_factor;
     if !a.ppd.is_empty() {
         cfg.conditions.clone_from(&a.ppd);
@@ -249,6 +263,18 @@ fn bench(a: &BenchArgs) -> anyhow::Result<()> {
         a.out.join("report.md").display()
     );
     Ok(())
+}
+
+/// Writes the examples built into the binary into `OUT/examples/` and returns that folder:
+/// the bench reads scenes from files (the peer renderer and the report name them).
+fn write_builtin_examples(out: &std::path::Path) -> anyhow::Result<PathBuf> {
+    let dir = out.join("examples");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for (name, text) in crate::scene::examples::EXAMPLES {
+        let p = dir.join(format!("{name}.json"));
+        std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    Ok(dir)
 }
 
 #[cfg(test)]

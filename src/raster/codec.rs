@@ -147,6 +147,29 @@ pub fn encode_png_display(img: &LinearImage, exposure: f32) -> Result<Vec<u8>, C
     )
 }
 
+/// JPEG (baseline, quality `quality` of 100) of a linear image as a person sees it on the
+/// scene's display: the same 8-bit sRGB levels as [`encode_png_display`], lossy.
+pub fn encode_jpeg_display(
+    img: &LinearImage,
+    exposure: f32,
+    quality: u8,
+) -> Result<Vec<u8>, CodecError> {
+    if img.width() == 0 || img.height() == 0 {
+        return Err(CodecError::Empty);
+    }
+    let flat = to_display_flat_rgb8(img, exposure);
+    let mut out = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+        .encode(
+            &flat,
+            img.width(),
+            img.height(),
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| CodecError::Encode(e.to_string()))?;
+    Ok(out)
+}
+
 /// Linear float OpenEXR of the raw radiance (no exposure, no clamp).
 ///
 /// Through the `exr` crate directly (the one behind `image`), uncompressed: `image`'s
