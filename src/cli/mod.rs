@@ -239,6 +239,7 @@ async fn shutdown_signal() {
 fn bench(a: &BenchArgs) -> anyhow::Result<()> {
     let scenes = match &a.scenes {
         Some(dir) => dir.clone(),
+        None if a.corpus_only => a.out.join("examples"), // not read
         None => write_builtin_examples(&a.out)?,
     };
     let mut cfg = crate::bench::BenchConfig::new(scenes, a.out.clone(), a.quick);
