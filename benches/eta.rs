@@ -47,9 +47,25 @@ fn observe(scene: &Scene) -> (Vec<(f64, Eta)>, f64) {
     );
     let start = Instant::now();
     let mut seen = Vec::new();
+    let trace = std::env::var_os("ETA_TRACE").is_some();
     let mut on_frame = |f: &Frame| {
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        seen.push((ms, tracker.update(f, ms)));
+        let eta = tracker.update(f, ms);
+        if trace {
+            let d = f
+                .stats
+                .per_iteration
+                .last()
+                .map_or(f64::NAN, |s| s.mean_distance);
+            eprintln!(
+                "  {} it {} at {ms:.0} ms: d {d:.3}, traced {:.3}, eta {:?}",
+                scene.name,
+                f.iteration,
+                f.stats.pixel_fraction,
+                eta.ms()
+            );
+        }
+        seen.push((ms, eta));
     };
     let opts = RenderOptions {
         mode: Some(glimpse::scene::RenderMode::Progressive),
