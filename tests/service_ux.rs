@@ -119,3 +119,69 @@ fn the_command_line_prints_scene_warnings_on_stderr() {
         "{err}"
     );
 }
+
+#[tokio::test]
+async fn retention_forgets_the_oldest_finished_jobs_and_their_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    let mut ids = Vec::new();
+    for _ in 0..3 {
+        let r = c
+            .post(format!("{base}/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(LIT_SCENE)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 201);
+        let id = r.json::<serde_json::Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_owned();
+        common::wait_state(&c, &base, &id, "succeeded", Duration::from_secs(60)).await;
+        ids.push(id);
+    }
+    for id in &ids {
+        assert!(dir.path().join("jobs").join(id).join("image.png").exists());
+    }
+    server.terminate().await;
+    // Keep one: the two oldest go, with their folders; the newest stays.
+    let _server = common::spawn(dir.path(), port, None, &["--keep-jobs", "1"], &[], &c).await;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        let gone = c
+            // The policy forgets newest first, so the oldest goes last.
+            .get(format!("{base}/v1/jobs/{}", ids[0]))
+            .send()
+            .await
+            .unwrap()
+            .status()
+            == 404;
+        if gone {
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "retention never ran");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    for id in &ids[..2] {
+        let st = c
+            .get(format!("{base}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap()
+            .status();
+        assert_eq!(st, 404, "{id}");
+        assert!(!dir.path().join("jobs").join(id).exists(), "{id}'s files");
+    }
+    let newest = common::job(&c, &base, &ids[2]).await;
+    assert_eq!(newest["state"], "succeeded");
+    assert!(dir
+        .path()
+        .join("jobs")
+        .join(&ids[2])
+        .join("image.png")
+        .exists());
+}

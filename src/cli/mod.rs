@@ -71,6 +71,17 @@ pub struct ServeArgs {
     /// server, accepted in `Host` and `Origin` when there is no token; repeatable.
     #[arg(long = "allowed-host", value_name = "NAME")]
     pub allowed_hosts: Vec<String>,
+    /// Finished jobs kept (the newest; older ones are forgotten with their pictures, as
+    /// DELETE does); 0 keeps any number.
+    #[arg(long, default_value_t = 1000, value_name = "N")]
+    pub keep_jobs: usize,
+    /// Days a finished job is kept; 0 keeps them for ever.
+    #[arg(long, default_value_t = 30.0, value_name = "DAYS", value_parser = non_negative)]
+    pub keep_days: f64,
+    /// Gigabytes (10^9 bytes) the finished jobs' pictures may take on disk, the newest
+    /// kept first; 0 is no limit.
+    #[arg(long, default_value_t = 10.0, value_name = "GB", value_parser = non_negative)]
+    pub keep_gb: f64,
     /// Log format on stderr: `text` for people, `json` (one object per line) for log
     /// collectors. Read by `main` before the subscriber is installed.
     #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
@@ -194,11 +205,25 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         config.client_stall = std::time::Duration::from_secs_f64(a.client_stall);
         config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
         config.allowed_hosts = a.allowed_hosts;
+        config.retention = crate::service::retention::Retention {
+            max_jobs: (a.keep_jobs > 0).then_some(a.keep_jobs),
+            max_age: (a.keep_days > 0.0)
+                .then(|| std::time::Duration::from_secs_f64(a.keep_days * 86_400.0)),
+            max_bytes: (a.keep_gb > 0.0).then(|| (a.keep_gb * 1e9) as u64),
+        };
         if let Some(p) = a.max_pixels {
             config.limits.max_pixels = p;
         }
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// A finite number at least 0 and at most 10^6 (days or gigabytes).
+fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=1e6).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} must be a number from 0 to 1000000")),
+    }
 }
 
 /// A duration in seconds for a flag: finite, above zero, at most a day.

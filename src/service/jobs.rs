@@ -603,6 +603,23 @@ impl Jobs {
         self.inner.store.scene(id).await
     }
 
+    /// Finished jobs newest first, with when they finished (unreadable ids are skipped).
+    pub async fn finished_newest_first(
+        &self,
+    ) -> Result<Vec<(Uuid, Option<time::OffsetDateTime>)>, StoreError> {
+        let rows = self.inner.store.finished().await?;
+        Ok(rows
+            .into_iter()
+            .filter_map(|(id, at)| {
+                let at = at.and_then(|s| {
+                    time::OffsetDateTime::parse(&s, &time::format_description::well_known::Rfc3339)
+                        .ok()
+                });
+                Some((Uuid::parse_str(&id).ok()?, at))
+            })
+            .collect())
+    }
+
     pub async fn list(
         &self,
         state: Option<JobState>,
