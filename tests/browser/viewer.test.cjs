@@ -23,7 +23,8 @@
 //  - a width-only size override keeps the scene's aspect;
 //  - on a narrow screen an open job's picture comes before the editor;
 //  - the time left reads as a range, "finishing" or "estimating", never "0 ms";
-//  - downloads are named after the job.
+//  - downloads are named after the job;
+//  - the iteration slider shows an earlier iteration's picture and comes back.
 "use strict";
 
 const fs = require("fs");
@@ -211,6 +212,19 @@ async function main() {
     })), "the iterations card agrees with the statistics (" + iteration + ")");
     const frames = await page.$eval("#frame-img", (i) => Number(i.dataset.frames));
     console.log("  frames received: " + frames);
+    // The iteration slider goes back to the first picture and forward to the last.
+    check(!(await page.isDisabled("#iteration-slider")), "the iteration slider is live after " + frames + " frames");
+    const latestSrc = await page.getAttribute("#frame-img", "src");
+    await page.$eval("#iteration-slider", (sl) => { sl.value = "0"; sl.dispatchEvent(new Event("input")); });
+    await page.waitForFunction((old) => {
+      const i = document.querySelector("#frame-img");
+      return i.src !== old && i.dataset.shown === "0" && i.complete && i.naturalWidth > 0;
+    }, latestSrc);
+    const shownLabel = await page.textContent("#iteration-shown");
+    check(/^iteration 1 of \d+$/.test(shownLabel), "moving it shows an earlier iteration (" + shownLabel + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-slider.png"), fullPage: false });
+    await page.$eval("#iteration-slider", (sl) => { sl.value = sl.max; sl.dispatchEvent(new Event("input")); });
+    check(/latest/.test(await page.textContent("#iteration-shown")), "and back to the latest");
 
     // 4. the distance layer -----------------------------------------------------------------
     await page.waitForFunction(() => {
