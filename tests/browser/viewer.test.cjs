@@ -251,6 +251,17 @@ async function main() {
     check(/object/.test(await page.textContent("#legend")), "the objects legend is shown");
     await page.check("#layer-distance");
     await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "distance");
+    // At 1440×900 the legend sits beside the picture, both in view.
+    await page.setViewportSize({ width: 1440, height: 900 });
+    await page.evaluate(() => document.querySelector("#frame-img").scrollIntoView({ block: "nearest" }));
+    const [imgBox, legendBox] = await page.evaluate(() => ["#frame-img", "#legend"].map((q) => {
+      const r = document.querySelector(q).getBoundingClientRect();
+      return { left: r.left, right: r.right, top: r.top, bottom: r.bottom };
+    }));
+    check(legendBox.left >= imgBox.right - 1 && legendBox.bottom <= 900 && imgBox.bottom <= 900,
+      "at 1440×900 the legend is beside the picture and both are in view");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-legend.png"), fullPage: false });
+    await page.setViewportSize({ width: 1280, height: 900 });
     await page.screenshot({ path: shotPath, fullPage: true });
     console.log("  screenshot: " + shotPath);
     await page.check("#layer-image");
