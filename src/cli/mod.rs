@@ -209,7 +209,7 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
             max_jobs: (a.keep_jobs > 0).then_some(a.keep_jobs),
             max_age: (a.keep_days > 0.0)
                 .then(|| std::time::Duration::from_secs_f64(a.keep_days * 86_400.0)),
-            max_bytes: (a.keep_gb > 0.0).then(|| (a.keep_gb * 1e9) as u64),
+            max_bytes: (a.keep_gb > 0.0).then_some((a.keep_gb * 1e9) as u64),
         };
         if let Some(p) = a.max_pixels {
             config.limits.max_pixels = p;

@@ -101,8 +101,8 @@ impl OutputFormat {
     }
 }
 
-/// JPEG quality for `--output x.jpg`: visually lossless for renders at a third of the
-/// PNG's size is not promised; 92 is the common "high" setting.
+/// JPEG quality for `--output x.jpg` (of 100): the common "high" setting; use .png or
+/// .exr when every level matters.
 const JPEG_QUALITY: u8 = 92;
 
 /// `--max-pixels`: an absolute count or a share of the image's pixels.
