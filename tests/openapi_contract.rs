@@ -28,6 +28,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("DELETE", "/v1/jobs/{id}"),
     ("POST", "/v1/jobs/{id}/cancel"),
     ("GET", "/v1/jobs/{id}/frame"),
+    ("GET", "/v1/jobs/{id}/scene"),
     ("GET", "/v1/jobs/{id}/stream"),
     ("GET", "/v1/examples"),
     ("GET", "/"),

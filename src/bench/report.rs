@@ -627,7 +627,16 @@ fn peer_section(peer: &Result<PeerResult, String>) -> String {
             );
         }
         Err(why) => {
-            let _ = writeln!(md, "Not run: {why}.\n");
+            // One line: a peer script's whole error output does not belong in the report
+            // (it is kept in results.json's `peer_error`).
+            let first = why.lines().next().unwrap_or("").trim();
+            let short: String = first.chars().take(120).collect();
+            let more = if short.len() < why.trim().len() {
+                " (the rest in results.json, `peer_error`)"
+            } else {
+                ""
+            };
+            let _ = writeln!(md, "Not run: {short}{more}.\n");
         }
     }
     md
@@ -660,15 +669,23 @@ fn plot(cfg: &BenchConfig, results: &[SceneResult]) -> anyhow::Result<()> {
         .x_desc("time / reference time")
         .y_desc("Q = FLIP(progressive, truth) / FLIP(reference, truth)")
         .draw()?;
-    // The targets: Q = 1 and 0.5× time.
-    chart.draw_series(LineSeries::new(
-        [(0.0, Q_TARGET), (max_t, Q_TARGET)],
-        BLACK.mix(0.4).stroke_width(1),
-    ))?;
-    chart.draw_series(LineSeries::new(
-        [(TIME_TARGET, 0.0), (TIME_TARGET, max_q)],
-        BLACK.mix(0.4).stroke_width(1),
-    ))?;
+    // The targets: Q = 1 and 0.5× time, named in the legend (the corner they bound,
+    // lower-left of both, is where a method meets them).
+    let grey = BLACK.mix(0.4);
+    chart
+        .draw_series(LineSeries::new(
+            [(0.0, Q_TARGET), (max_t, Q_TARGET)],
+            grey.stroke_width(1),
+        ))?
+        .label(format!("target: Q = {Q_TARGET} (as good as the reference)"))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey));
+    chart
+        .draw_series(LineSeries::new(
+            [(TIME_TARGET, 0.0), (TIME_TARGET, max_q)],
+            grey.stroke_width(1),
+        ))?
+        .label(format!("target: {TIME_TARGET}× the reference's time"))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey));
     let mut series = 0;
     for r in results {
         let mut ppds: Vec<f32> = r.sweep.iter().map(|s| s.ppd).collect();

@@ -15,7 +15,9 @@ use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct CompareArgs {
+    /// The first image: PNG (read as sRGB) or EXR (linear values).
     pub a: PathBuf,
+    /// The second image, the same size as the first.
     pub b: PathBuf,
     /// Also write the statistics JSON here.
     #[arg(long)]
@@ -132,12 +134,44 @@ pub fn compare_images(
     Ok((stats, dm))
 }
 
+/// The comparison in words, with units and a verdict: 1 JND is a difference a person
+/// just notices (vision-model.md §2.7).
+#[must_use]
+pub fn sentence(s: &CompareStats, a: &CompareArgs) -> String {
+    let verdict = if s.max_distance < 1.0 {
+        "a person would see no difference anywhere"
+    } else if s.p95_distance < 1.0 {
+        "a person would see a difference in a few places only"
+    } else if s.mean_distance < 1.0 {
+        "a person would see a difference in places"
+    } else {
+        "a person would see the difference across the image"
+    };
+    let total = u64::from(s.width) * u64::from(s.height);
+    format!(
+        "{} and {} differ by {:.2} JND on average (95 % of pixels within {:.2} JND, at most {:.2} JND; 1 JND is just noticeable), seen at {} pixels per degree on a {} cd/m² display: {verdict}. {} of {} pixels evaluated ({}) in {:.0} ms.",
+        a.a.display(),
+        a.b.display(),
+        s.mean_distance,
+        s.p95_distance,
+        s.max_distance,
+        a.ppd,
+        a.display_peak,
+        s.pixels_evaluated,
+        total,
+        if s.mode == "full" { "every pixel" } else { "adaptive quad-tree" },
+        s.ms
+    )
+}
+
 pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
     let img_a = load(&a.a)?;
     let img_b = load(&a.b)?;
     let (stats, dm) = compare_images(&img_a, &img_b, a)?;
     let json = serde_json::to_string_pretty(&stats)?;
     println!("{json}");
+    // The JSON on stdout is for scripts; the sentence on stderr is for the person.
+    eprintln!("{}", sentence(&stats, a));
     if let Some(p) = &a.stats {
         std::fs::write(p, format!("{json}\n"))
             .with_context(|| format!("cannot write {}", p.display()))?;

@@ -8,9 +8,10 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct ConvertArgs {
-    /// The file to import (.pbrt).
+    /// The file to import: .pbrt (pbrt-v4), .gltf or .glb (glTF 2.0), .obj (with its MTL).
     pub scene: PathBuf,
-    #[arg(long)]
+    /// Where to write the scene document (JSON, meshes inline).
+    #[arg(long, value_name = "SCENE.json")]
     pub output: PathBuf,
 }
 

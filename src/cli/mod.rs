@@ -5,6 +5,7 @@ pub mod compare;
 pub mod convert;
 pub mod render;
 
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
@@ -25,21 +26,27 @@ pub enum Command {
     Serve(ServeArgs),
     /// Render one scene without a server.
     Render(render::RenderArgs),
-    /// Import a scene (.pbrt) and write the scene document Glimpse understood.
+    /// Import a scene (.pbrt, .gltf, .glb, .obj) and write the scene document Glimpse
+    /// understood.
     Convert(convert::ConvertArgs),
-    /// Perceptual distance between two images.
+    /// Perceptual distance between two images, in JNDs (just-noticeable differences).
     Compare(compare::CompareArgs),
-    /// The speed-versus-accuracy study.
+    /// The speed-versus-accuracy study (runs anywhere: the examples are built in).
     Bench(BenchArgs),
 }
 
 #[derive(clap::Args, Debug)]
 pub struct ServeArgs {
-    #[arg(long, default_value = "127.0.0.1:8080")]
+    /// Address and port to listen on (HTTP and WebSocket; the viewer is at `/`). Beyond
+    /// loopback, set a token.
+    #[arg(long, default_value = "127.0.0.1:8080", value_name = "IP:PORT")]
     pub addr: String,
-    #[arg(long, default_value = "./glimpse-data")]
+    /// Folder for the job database and every job's images (created if missing).
+    #[arg(long, default_value = "./glimpse-data", value_name = "DIR")]
     pub data: PathBuf,
-    #[arg(long, default_value_t = 1)]
+    /// Jobs rendered at once; each render uses every core, so more than 1 only helps
+    /// short jobs wait less behind long ones.
+    #[arg(long, default_value_t = 1, value_name = "N")]
     pub workers: usize,
     /// Require `Authorization: Bearer TOKEN` on every /v1 call.
     #[arg(long, env = "GLIMPSE_TOKEN")]
@@ -64,6 +71,17 @@ pub struct ServeArgs {
     /// server, accepted in `Host` and `Origin` when there is no token; repeatable.
     #[arg(long = "allowed-host", value_name = "NAME")]
     pub allowed_hosts: Vec<String>,
+    /// Finished jobs kept (the newest; older ones are forgotten with their pictures, as
+    /// DELETE does); 0 keeps any number.
+    #[arg(long, default_value_t = 1000, value_name = "N")]
+    pub keep_jobs: usize,
+    /// Days a finished job is kept; 0 keeps them for ever.
+    #[arg(long, default_value_t = 30.0, value_name = "DAYS", value_parser = non_negative)]
+    pub keep_days: f64,
+    /// Gigabytes (10^9 bytes) the finished jobs' pictures may take on disk, the newest
+    /// kept first; 0 is no limit.
+    #[arg(long, default_value_t = 10.0, value_name = "GB", value_parser = non_negative)]
+    pub keep_gb: f64,
     /// Log format on stderr: `text` for people, `json` (one object per line) for log
     /// collectors. Read by `main` before the subscriber is installed.
     #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
@@ -91,9 +109,12 @@ impl Cli {
 
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    #[arg(long, default_value = "scenes")]
-    pub scenes: PathBuf,
-    #[arg(long, default_value = "bench-out")]
+    /// A folder of scene documents (*.json) to study. Default: the five examples built
+    /// into the binary (the project's `scenes/`), so the bench runs from any folder.
+    #[arg(long, value_name = "DIR")]
+    pub scenes: Option<PathBuf>,
+    /// Where the report (report.md, results.json, plots) is written.
+    #[arg(long, default_value = "bench-out", value_name = "DIR")]
     pub out: PathBuf,
     /// Small sizes that fit in CI.
     #[arg(long)]
@@ -184,11 +205,25 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         config.client_stall = std::time::Duration::from_secs_f64(a.client_stall);
         config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
         config.allowed_hosts = a.allowed_hosts;
+        config.retention = crate::service::retention::Retention {
+            max_jobs: (a.keep_jobs > 0).then_some(a.keep_jobs),
+            max_age: (a.keep_days > 0.0)
+                .then(|| std::time::Duration::from_secs_f64(a.keep_days * 86_400.0)),
+            max_bytes: (a.keep_gb > 0.0).then_some((a.keep_gb * 1e9) as u64),
+        };
         if let Some(p) = a.max_pixels {
             config.limits.max_pixels = p;
         }
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// A finite number at least 0 and at most 10^6 (days or gigabytes).
+fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && (0.0..=1e6).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} must be a number from 0 to 1000000")),
+    }
 }
 
 /// A duration in seconds for a flag: finite, above zero, at most a day.
@@ -227,7 +262,12 @@ async fn shutdown_signal() {
 }
 
 fn bench(a: &BenchArgs) -> anyhow::Result<()> {
-    let mut cfg = crate::bench::BenchConfig::new(a.scenes.clone(), a.out.clone(), a.quick);
+    let scenes = match &a.scenes {
+        Some(dir) => dir.clone(),
+        None if a.corpus_only => a.out.join("examples"), // not read
+        None => write_builtin_examples(&a.out)?,
+    };
+    let mut cfg = crate::bench::BenchConfig::new(scenes, a.out.clone(), a.quick);
     cfg.spp_factor = a.spp_factor;
     if !a.ppd.is_empty() {
         cfg.conditions.clone_from(&a.ppd);
@@ -249,6 +289,18 @@ fn bench(a: &BenchArgs) -> anyhow::Result<()> {
         a.out.join("report.md").display()
     );
     Ok(())
+}
+
+/// Writes the examples built into the binary into `OUT/examples/` and returns that folder:
+/// the bench reads scenes from files (the peer renderer and the report name them).
+fn write_builtin_examples(out: &std::path::Path) -> anyhow::Result<PathBuf> {
+    let dir = out.join("examples");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for (name, text) in crate::scene::examples::EXAMPLES {
+        let p = dir.join(format!("{name}.json"));
+        std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    Ok(dir)
 }
 
 #[cfg(test)]

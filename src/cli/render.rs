@@ -1,20 +1,29 @@
 //! `glimpse render SCENE.json --output OUT.png`: one scene without a server.
 
 use crate::cancel::CancelToken;
+use crate::progressive::eta::{self, Eta, EtaTracker};
 use crate::progressive::{self, RenderOptions};
-use crate::raster;
+use crate::raster::{self, LinearImage};
 use crate::scene::{Limits, RenderMode};
 use crate::tracer::PathTracer;
 use anyhow::Context;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
-    /// The scene: a document (.json, scene-format.md) or a file to import (.pbrt).
+    /// The scene: a document (.json, scene-format.md) or a file to import (.pbrt, .gltf,
+    /// .glb, .obj), chosen by extension.
     pub scene: PathBuf,
-    #[arg(long)]
+    /// The image to write; its extension names the format: .png (8-bit sRGB as shown on
+    /// the scene's display), .jpg/.jpeg (the same, lossy, quality 92) or .exr (linear
+    /// radiance, 32-bit float). Any other extension is refused before rendering.
+    #[arg(long, value_name = "OUT.png|OUT.jpg|OUT.exr")]
     pub output: PathBuf,
-    #[arg(long, value_parser = parse_mode)]
+    /// How pixels are chosen: `progressive` (F&P04's perceptual loop), `guo` (the same
+    /// loop with Guo 1998's statistical oracle) or `reference` (every pixel traced).
+    /// Default: the scene's `render.mode`, which defaults to progressive.
+    #[arg(long, value_parser = parse_mode, value_name = "reference|progressive|guo")]
     pub mode: Option<RenderMode>,
     /// Write the final statistics as JSON.
     #[arg(long)]
@@ -51,6 +60,50 @@ pub struct RenderArgs {
     #[arg(long)]
     pub no_noise_compensation: bool,
 }
+
+/// The format `--output` names by its extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutputFormat {
+    Png,
+    Jpeg,
+    Exr,
+}
+
+impl OutputFormat {
+    /// The format of `path` by its extension (any case), or a sentence saying why not.
+    pub fn of(path: &Path) -> Result<Self, String> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("png") => Ok(Self::Png),
+            Some("jpg" | "jpeg") => Ok(Self::Jpeg),
+            Some("exr") => Ok(Self::Exr),
+            Some(other) => Err(format!(
+                "--output {}: cannot write .{other} images; name a .png, .jpg, .jpeg or .exr file",
+                path.display()
+            )),
+            None => Err(format!(
+                "--output {} has no extension; name a .png, .jpg, .jpeg or .exr file",
+                path.display()
+            )),
+        }
+    }
+
+    /// `image` encoded in this format (display formats through `exposure`).
+    pub fn encode(self, image: &LinearImage, exposure: f32) -> anyhow::Result<Vec<u8>> {
+        Ok(match self {
+            Self::Png => raster::encode_png_display(image, exposure)?,
+            Self::Jpeg => raster::encode_jpeg_display(image, exposure, JPEG_QUALITY)?,
+            Self::Exr => raster::encode_exr(image)?,
+        })
+    }
+}
+
+/// JPEG quality for `--output x.jpg` (of 100): the common "high" setting; use .png or
+/// .exr when every level matters.
+const JPEG_QUALITY: u8 = 92;
 
 /// `--max-pixels`: an absolute count or a share of the image's pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,6 +179,8 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
+    // Refused before any work: a wrong extension must not cost a render.
+    let format = OutputFormat::of(&a.output).map_err(anyhow::Error::msg)?;
     let (mut scene, import_warnings) = crate::import::load_path(&a.scene, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
     for w in &import_warnings {
@@ -156,20 +211,36 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         noise_compensation: a.no_noise_compensation.then_some(false),
     };
     let bar = progress_bar();
+    let start = Instant::now();
+    let mut tracker = EtaTracker::new(
+        f64::from(scene.progressive.t0),
+        scene.progressive.max_iterations,
+    );
     let mut on_frame = |f: &progressive::Frame| {
-        bar.set_message(format!(
-            "iteration {} · {:.1}% traced · {:.0} ms",
-            f.iteration,
-            f.stats.pixel_fraction * 100.0,
-            f.stats.total_ms
-        ));
-        bar.tick();
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        let eta = tracker.update(f, elapsed);
+        let done = done_share(elapsed, &eta);
+        bar.set_position(done.max(bar.position()));
+        bar.set_message(frame_line(f, elapsed, &eta));
     };
-    let frame = progressive::render(&scene, &tracer, &opts, &mut on_frame, &CancelToken::new())
-        .map_err(|_| anyhow::anyhow!("render cancelled"))?;
+    let on_pixels = |done: usize, total: usize| {
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        let (line, share) = pass_line(done, total, elapsed);
+        bar.set_position(share);
+        bar.set_message(line);
+    };
+    let frame = progressive::render_reporting(
+        &scene,
+        &tracer,
+        &opts,
+        &mut on_frame,
+        &on_pixels,
+        &CancelToken::new(),
+    )
+    .map_err(|_| anyhow::anyhow!("render cancelled"))?;
     bar.finish_and_clear();
-    let png = raster::encode_png_display(&frame.image, scene.display.exposure)?;
-    std::fs::write(&a.output, png)
+    let bytes = format.encode(&frame.image, scene.display.exposure)?;
+    std::fs::write(&a.output, bytes)
         .with_context(|| format!("cannot write {}", a.output.display()))?;
     if let Some(p) = &a.exr {
         std::fs::write(p, raster::encode_exr(&frame.image)?)
@@ -183,15 +254,69 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         write_layers(dir, &frame)?;
     }
     eprintln!(
-        "{}: {}x{} {} in {:.0} ms, {:.1}% of pixels traced",
+        "{}: {}x{} {} in {}, {:.1} % of pixels traced",
         a.output.display(),
         scene.width,
         scene.height,
         frame.stats.mode,
-        frame.stats.total_ms,
+        eta::seconds(frame.stats.total_ms),
         frame.stats.pixel_fraction * 100.0
     );
     Ok(())
+}
+
+/// Steps of the progress bar.
+const BAR_STEPS: u64 = 1000;
+
+/// How far along a progressive render is, in bar steps: elapsed over elapsed plus the
+/// time left (`None` while unknown, so the bar waits rather than guesses).
+fn done_share(elapsed_ms: f64, eta: &Eta) -> u64 {
+    let left = match eta {
+        Eta::Done => 0.0,
+        Eta::Left { ms, .. } => *ms,
+        Eta::Finishing | Eta::Unknown => return 0,
+    };
+    let total = elapsed_ms + left;
+    if total > 0.0 {
+        ((elapsed_ms / total) * BAR_STEPS as f64).round() as u64
+    } else {
+        0
+    }
+}
+
+/// The progress bar's words after a frame of the progressive or Guo loop.
+fn frame_line(f: &progressive::Frame, elapsed_ms: f64, eta: &Eta) -> String {
+    format!(
+        "iteration {} · {:.1} % of pixels traced · {} elapsed · {}",
+        f.iteration + 1,
+        f.stats.pixel_fraction * 100.0,
+        eta::seconds(elapsed_ms),
+        eta.describe()
+    )
+}
+
+/// The progress bar's words and position during the reference's single pass: the time
+/// left extrapolated from the pixels done so far (pixels cost about the same on average).
+fn pass_line(done: usize, total: usize, elapsed_ms: f64) -> (String, u64) {
+    let share = if total == 0 {
+        1.0
+    } else {
+        done as f64 / total as f64
+    };
+    let left = if done == 0 {
+        "estimating time left…".to_string()
+    } else if done >= total {
+        "finishing".to_string()
+    } else {
+        let ms = elapsed_ms * (total - done) as f64 / done as f64;
+        format!("about {} left", eta::seconds(ms))
+    };
+    let line = format!(
+        "{:.1} % of pixels traced · {} elapsed · {left}",
+        share * 100.0,
+        eta::seconds(elapsed_ms)
+    );
+    (line, (share * BAR_STEPS as f64).round() as u64)
 }
 
 fn write_layers(dir: &std::path::Path, frame: &progressive::Frame) -> anyhow::Result<()> {
@@ -203,12 +328,67 @@ fn write_layers(dir: &std::path::Path, frame: &progressive::Frame) -> anyhow::Re
     Ok(())
 }
 
-/// A spinner with a message on a terminal; hidden when stderr is not a terminal.
+/// A bar with its words on a terminal; hidden when stderr is not a terminal (scripts).
 fn progress_bar() -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::new_spinner();
+    let bar = indicatif::ProgressBar::new(BAR_STEPS);
     if !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{spinner} [{bar:30}] {msg}")
+        .map(|s| s.progress_chars("=> "))
+    {
+        bar.set_style(style);
+    }
     bar.enable_steady_tick(std::time::Duration::from_millis(120));
     bar
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_format_follows_the_extension_or_is_refused() {
+        assert_eq!(OutputFormat::of(Path::new("a.png")), Ok(OutputFormat::Png));
+        assert_eq!(OutputFormat::of(Path::new("a.JPG")), Ok(OutputFormat::Jpeg));
+        assert_eq!(
+            OutputFormat::of(Path::new("d/a.jpeg")),
+            Ok(OutputFormat::Jpeg)
+        );
+        assert_eq!(OutputFormat::of(Path::new("a.exr")), Ok(OutputFormat::Exr));
+        let e = OutputFormat::of(Path::new("a.tiff")).unwrap_err();
+        assert!(e.contains(".tiff") && e.contains(".png"), "{e}");
+        assert!(OutputFormat::of(Path::new("image"))
+            .unwrap_err()
+            .contains("no extension"));
+    }
+
+    #[test]
+    fn each_format_encodes_its_own_bytes() {
+        let img = LinearImage::filled(4, 3, crate::raster::Rgb::new(0.2, 0.4, 0.8));
+        let png = OutputFormat::Png.encode(&img, 1.0).unwrap();
+        assert_eq!(&png[..4], b"\x89PNG");
+        let jpg = OutputFormat::Jpeg.encode(&img, 1.0).unwrap();
+        assert_eq!(&jpg[..3], &[0xFF, 0xD8, 0xFF]);
+        let exr = OutputFormat::Exr.encode(&img, 1.0).unwrap();
+        assert_eq!(&exr[..4], &[0x76, 0x2F, 0x31, 0x01]);
+    }
+
+    #[test]
+    fn the_reference_pass_extrapolates_its_time_left() {
+        let (line, pos) = pass_line(250, 1000, 1000.0);
+        assert_eq!(pos, 250);
+        assert!(line.contains("25.0 % of pixels traced"), "{line}");
+        assert!(line.contains("about 3.0 s left"), "{line}");
+        assert!(pass_line(0, 1000, 5.0).0.contains("estimating"));
+        assert!(pass_line(1000, 1000, 5.0).0.contains("finishing"));
+    }
+
+    #[test]
+    fn the_bar_moves_with_the_estimate_and_waits_when_unknown() {
+        let eta = Eta::around(3000.0, 1.0);
+        assert_eq!(done_share(1000.0, &eta), 250);
+        assert_eq!(done_share(1000.0, &Eta::Unknown), 0);
+        assert_eq!(done_share(1000.0, &Eta::Done), BAR_STEPS);
+    }
 }

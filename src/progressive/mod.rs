@@ -51,6 +51,7 @@
 pub mod classify;
 pub mod complex;
 pub mod driver;
+pub mod eta;
 pub mod guo;
 pub mod layers;
 pub mod mesh;
@@ -147,8 +148,22 @@ pub fn render(
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
+    render_reporting(scene, oracle, opts, on_frame, &|_, _| {}, cancel)
+}
+
+/// [`render`], also reporting `(pixels done, pixels in all)` through `on_pixels` during
+/// the reference mode's single pass, which has no frame until its end (the command line's
+/// progress bar).
+pub fn render_reporting(
+    scene: &Scene,
+    oracle: &impl PixelOracle,
+    opts: &RenderOptions,
+    on_frame: &mut dyn FnMut(&Frame),
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
     match opts.mode.unwrap_or(scene.render.mode) {
-        RenderMode::Reference => render_reference(scene, oracle, on_frame, cancel),
+        RenderMode::Reference => render_reference(scene, oracle, on_frame, on_pixels, cancel),
         RenderMode::Progressive => {
             let settings = settings(scene, opts, driver::Oracle::Perceptual);
             // The oracle's size is authoritative (it is what gets traced).
@@ -219,10 +234,11 @@ fn render_reference(
     scene: &Scene,
     oracle: &impl PixelOracle,
     on_frame: &mut dyn FnMut(&Frame),
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
     let start = Instant::now();
-    let image = tracer::render_reference(oracle, cancel, &|_, _| {})?;
+    let image = tracer::render_reference(oracle, cancel, on_pixels)?;
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let (w, h) = (scene.width, scene.height);
     let stats = RenderStats {

@@ -6,7 +6,9 @@
 pub mod codec;
 pub mod colormap;
 
-pub use codec::{decode_image, encode_exr, encode_png_display, encode_png_rgb8, CodecError};
+pub use codec::{
+    decode_image, encode_exr, encode_jpeg_display, encode_png_display, encode_png_rgb8, CodecError,
+};
 
 /// Linear RGB with Rec.709/sRGB primaries (scene-format.md "Units").
 pub type Rgb = glam::Vec3;

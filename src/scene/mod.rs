@@ -5,9 +5,11 @@
 
 pub mod doc;
 pub mod duplicates;
+pub mod examples;
 pub mod obj;
 pub mod transform;
 pub mod validate;
+pub mod warnings;
 
 pub use validate::{
     parse_scene, validate_doc, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin,

@@ -631,7 +631,7 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
             ),
         });
     }
-    Ok(Scene {
+    let mut scene = Scene {
         // An unnamed scene is "untitled" rather than "": logs and the viewer show it.
         name: doc.name.clone().unwrap_or_else(|| "untitled".into()),
         width: u32::try_from(w).unwrap_or(u32::MAX),
@@ -645,7 +645,10 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
         render,
         progressive,
         warnings: cx.warnings,
-    })
+    };
+    let suspicious = super::warnings::check(&scene);
+    scene.warnings.extend(suspicious);
+    Ok(scene)
 }
 
 /// Within ±[`MAX_COORDINATE`]; false for NaN (every comparison with NaN is false).

@@ -6,8 +6,7 @@ use axum::extract::State;
 use axum::response::IntoResponse;
 use serde_json::{json, Value};
 
-/// (name, document), sorted by name: every `scenes/*.json`, collected by `build.rs`.
-pub const EXAMPLES: &[(&str, &str)] = include!(concat!(env!("OUT_DIR"), "/examples.rs"));
+pub use crate::scene::examples::EXAMPLES;
 
 pub async fn list(State(_st): State<AppState>) -> Result<impl IntoResponse, ApiError> {
     let examples: Vec<Value> = EXAMPLES
@@ -17,7 +16,7 @@ pub async fn list(State(_st): State<AppState>) -> Result<impl IntoResponse, ApiE
             // than fail the whole list (a unit test keeps them all valid JSON).
             serde_json::from_str::<Value>(text)
                 .ok()
-                .map(|scene| json!({ "name": name, "scene": scene }))
+                .map(|scene| json!({ "name": name, "scene": scene, "text": text }))
         })
         .collect();
     Ok(axum::Json(json!({ "examples": examples })))

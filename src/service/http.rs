@@ -471,6 +471,7 @@ pub fn router(state: AppState) -> Router {
     let v1 = Router::new()
         .route("/jobs", post(create_job).get(list_jobs))
         .route("/jobs/{id}", get(get_job).delete(delete_job))
+        .route("/jobs/{id}/scene", get(get_scene))
         .route("/jobs/{id}/cancel", post(cancel_job))
         .route("/jobs/{id}/frame", get(get_frame))
         .route("/jobs/{id}/stream", get(ws::stream))
@@ -706,6 +707,11 @@ async fn create_job(
         )
         .at("name"));
     }
+    // What the import approximated, then what is valid but almost surely wrong.
+    let warnings: Vec<String> = warnings
+        .into_iter()
+        .chain(scene.warnings.iter().map(ToString::to_string))
+        .collect();
     let name = if scene.name.trim().is_empty() {
         "untitled".to_owned()
     } else {
@@ -807,6 +813,17 @@ async fn get_job(
         .await?
         .map(Json)
         .ok_or_else(|| ApiError::not_found_job(&id.to_string()))
+}
+
+/// The job's scene document byte for byte as submitted (its keys' order, spacing and
+/// comments-free JSON as written), so a client can inspect or edit and re-submit it.
+async fn get_scene(State(st): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
+    let text = st
+        .jobs
+        .scene(id)
+        .await?
+        .ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
+    Ok(([(header::CONTENT_TYPE, "application/json")], text).into_response())
 }
 
 async fn cancel_job(State(st): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {

@@ -14,6 +14,7 @@
 use super::metrics::Metrics;
 use super::store::{self, JobRecord, JobState, Store, StoreError};
 use crate::cancel::CancelToken;
+use crate::progressive::eta::{Eta, EtaTracker};
 use crate::progressive::{self, layers, Frame, RenderOptions};
 use crate::scene::{parse_scene, Limits, SceneOrigin};
 use crate::tracer::PathTracer;
@@ -282,109 +283,30 @@ impl LiveJob {
 }
 
 // ---------------------------------------------------------------------------------------
-// Progress and ETA
+// Progress
 
-/// Estimates the time left from how fast the perceptual error falls.
-///
-/// Method: the mean perceptual distance between successive frames (`mean_distance` of
-/// each iteration, F&P04 §4.2) shrinks roughly geometrically as the mesh refines, and
-/// the render is done when it falls below `t0`. We fit `ln d_k = a + b·k` by least squares
-/// over the last [`Self::WINDOW`] iterations with `d_k > 0`; if `b < 0` the iterations
-/// still needed are `k* − k` with `k* = (ln t0 − a) / b` (capped at `max_iterations`),
-/// and the ETA is that count times the mean iteration time so far. The confidence is the
-/// fit's R² shrunk by the number of points (`R² · n / (n + 2)`), so two points never
-/// claim certainty. Unknown (null) when fewer than two usable iterations, when the error
-/// does not fall, or when `t0 = 0` and no pixel rate is known; with `t0 = 0` ("every pixel
-/// ends up traced") the estimate instead extrapolates the traced-pixel fraction linearly.
-struct EtaTracker {
-    t0: f64,
-    max_iterations: u32,
-    points: Vec<(f64, f64)>,
-}
-
-impl EtaTracker {
-    const WINDOW: usize = 6;
-
-    fn new(t0: f64, max_iterations: u32) -> Self {
-        Self {
-            t0,
-            max_iterations,
-            points: Vec::new(),
-        }
-    }
-
-    /// Returns `(eta_ms, confidence)`.
-    fn update(&mut self, frame: &Frame, elapsed_ms: f64) -> (Option<f64>, Option<f64>) {
-        let iterations_done = f64::from(frame.iteration + 1);
-        let per_iter_ms = elapsed_ms / iterations_done;
-        let d = frame
-            .stats
-            .per_iteration
-            .last()
-            .map_or(frame.stats.final_mean_distance, |s| s.mean_distance);
-        if d.is_finite() && d > 0.0 {
-            self.points.push((f64::from(frame.iteration), d.ln()));
-            if self.points.len() > Self::WINDOW {
-                self.points.remove(0);
-            }
-        }
-        if frame.last {
-            return (Some(0.0), Some(1.0));
-        }
-        if self.t0 <= 0.0 {
-            let f = frame.stats.pixel_fraction;
-            if f > 0.0 && f < 1.0 {
-                return (Some(elapsed_ms * (1.0 - f) / f), Some(0.5));
-            }
-            return (None, None);
-        }
-        let n = self.points.len();
-        if n < 2 {
-            return (None, None);
-        }
-        let nf = n as f64;
-        let (sx, sy) = self
-            .points
-            .iter()
-            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
-        let (mx, my) = (sx / nf, sy / nf);
-        let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-        for (x, y) in &self.points {
-            sxx += (x - mx) * (x - mx);
-            sxy += (x - mx) * (y - my);
-            syy += (y - my) * (y - my);
-        }
-        if sxx <= 0.0 {
-            return (None, None);
-        }
-        let b = sxy / sxx;
-        let a = my - b * mx;
-        if b >= 0.0 {
-            return (None, None);
-        }
-        let k_now = f64::from(frame.iteration);
-        // Iterations are numbered from 0, so the last possible one is max_iterations − 1.
-        let k_last = f64::from(self.max_iterations.saturating_sub(1));
-        let k_star = ((self.t0.ln() - a) / b).min(k_last);
-        let remaining = (k_star - k_now).max(1.0);
-        let r2 = if syy > 0.0 {
-            (sxy * sxy / (sxx * syy)).clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
-        (Some(remaining * per_iter_ms), Some(r2 * nf / (nf + 2.0)))
-    }
-}
-
-fn progress_json(frame: &Frame, elapsed_ms: f64, eta: (Option<f64>, Option<f64>)) -> Value {
+fn progress_json(frame: &Frame, elapsed_ms: f64, eta: Eta) -> Value {
+    let (low, high, confidence) = match eta {
+        Eta::Left {
+            low_ms,
+            high_ms,
+            confidence,
+            ..
+        } => (Some(low_ms), Some(high_ms), Some(confidence)),
+        Eta::Done => (Some(0.0), Some(0.0), Some(1.0)),
+        Eta::Unknown | Eta::Finishing => (None, None, None),
+    };
     json!({
         "iteration": frame.iteration,
         "pixels_traced": frame.stats.pixels_traced,
         "pixel_fraction": frame.stats.pixel_fraction,
         "elapsed_ms": elapsed_ms.round() as u64,
         "mean_distance": finite_or_null(frame.stats.final_mean_distance),
-        "eta_ms": eta.0.map(|v| v.round() as u64),
-        "eta_confidence": eta.1,
+        "eta_ms": match eta { Eta::Done => Some(0), _ => eta.ms().map(|v| v.round() as u64) },
+        "eta_low_ms": low.map(|v| v.round() as u64),
+        "eta_high_ms": high.map(|v| v.round() as u64),
+        "eta_confidence": confidence,
+        "finishing": eta == Eta::Finishing,
     })
 }
 
@@ -675,6 +597,29 @@ impl Jobs {
         self.inner.store.get(id).await
     }
 
+    /// The scene document a job was submitted with, as its client wrote it (a JSON
+    /// submission's own text; for an import, the document the import produced).
+    pub async fn scene(&self, id: Uuid) -> Result<Option<String>, StoreError> {
+        self.inner.store.scene(id).await
+    }
+
+    /// Finished jobs newest first, with when they finished (unreadable ids are skipped).
+    pub async fn finished_newest_first(
+        &self,
+    ) -> Result<Vec<(Uuid, Option<time::OffsetDateTime>)>, StoreError> {
+        let rows = self.inner.store.finished().await?;
+        Ok(rows
+            .into_iter()
+            .filter_map(|(id, at)| {
+                let at = at.and_then(|s| {
+                    time::OffsetDateTime::parse(&s, &time::format_description::well_known::Rfc3339)
+                        .ok()
+                });
+                Some((Uuid::parse_str(&id).ok()?, at))
+            })
+            .collect())
+    }
+
     pub async fn list(
         &self,
         state: Option<JobState>,
@@ -946,7 +891,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         Outcome::Done(f) => {
             let stats = serde_json::to_value(&f.stats).ok();
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
-            let progress = progress_json(&f, elapsed, (Some(0.0), Some(1.0)));
+            let progress = progress_json(&f, elapsed, Eta::Done);
             let lf = match latest.take() {
                 // The callback already saw this final frame: reuse it (and its PNG).
                 Some(l) if l.frame.iteration == f.iteration && l.frame.last => l,
@@ -1110,38 +1055,6 @@ mod tests {
             },
             last,
         }
-    }
-
-    #[test]
-    fn eta_follows_a_geometric_decay() {
-        // d_k = 16 / 2^k reaches t0 = 1 at k = 4; after iteration 2 (3 iterations in
-        // 300 ms, 100 ms each) two iterations remain: 200 ms, with a perfect fit.
-        let mut t = EtaTracker::new(1.0, 64);
-        assert_eq!(t.update(&frame(0, 16.0, false), 100.0), (None, None));
-        t.update(&frame(1, 8.0, false), 200.0);
-        let (eta, conf) = t.update(&frame(2, 4.0, false), 300.0);
-        assert!((eta.unwrap() - 200.0).abs() < 1e-6, "{eta:?}");
-        assert!((conf.unwrap() - 0.6).abs() < 1e-9, "{conf:?}"); // R² = 1, n = 3
-    }
-
-    #[test]
-    fn eta_is_unknown_when_the_error_does_not_fall_and_zero_at_the_end() {
-        let mut t = EtaTracker::new(1.0, 64);
-        t.update(&frame(0, 4.0, false), 10.0);
-        assert_eq!(t.update(&frame(1, 5.0, false), 20.0), (None, None));
-        assert_eq!(
-            t.update(&frame(2, f64::NAN, true), 30.0),
-            (Some(0.0), Some(1.0))
-        );
-    }
-
-    #[test]
-    fn eta_is_capped_by_max_iterations() {
-        // Very slow decay: k* would be huge; capped at 10 iterations in all.
-        let mut t = EtaTracker::new(1.0, 10);
-        t.update(&frame(0, 100.0, false), 10.0);
-        let (eta, _) = t.update(&frame(1, 99.0, false), 20.0);
-        assert!((eta.unwrap() - 80.0).abs() < 1e-6, "{eta:?}");
     }
 
     #[test]

@@ -16,6 +16,7 @@ pub mod examples;
 pub mod http;
 pub mod jobs;
 pub mod metrics;
+pub mod retention;
 pub mod stall;
 pub mod store;
 pub mod viewer;
@@ -59,6 +60,8 @@ pub struct Config {
     pub allowed_hosts: Vec<String>,
     /// Request bodies being read and validated at once, in bytes ([`VALIDATION_BUDGET`]).
     pub validation_budget: usize,
+    /// How many finished jobs, how old and how many bytes are kept (`--keep-*`).
+    pub retention: retention::Retention,
 }
 
 impl Config {
@@ -79,6 +82,7 @@ impl Config {
             job_timeout: jobs::DEFAULT_JOB_TIMEOUT,
             allowed_hosts: Vec::new(),
             validation_budget: VALIDATION_BUDGET,
+            retention: retention::Retention::default(),
         }
     }
 }
@@ -169,6 +173,12 @@ pub async fn run(
         request_deadline: config.request_deadline,
         max_watchers: config.max_watchers,
     };
+    tokio::spawn(retention::run(
+        jobs.clone(),
+        config.data_dir.join("jobs"),
+        config.retention,
+        stop.clone(),
+    ));
     let app = http::router(state);
     let stop2 = stop.clone();
     tokio::spawn(async move {

@@ -291,6 +291,16 @@ impl Store {
         row.map(Row::into_record).transpose()
     }
 
+    /// Every finished job's id and finishing time (RFC 3339), newest first: what
+    /// retention (`service::retention`) weighs.
+    pub async fn finished(&self) -> Result<Vec<(String, Option<String>)>, StoreError> {
+        Ok(sqlx::query_as(
+            "SELECT id, finished_at FROM jobs WHERE state IN ('succeeded', 'failed', 'cancelled') ORDER BY id DESC",
+        )
+        .fetch_all(&self.pool)
+        .await?)
+    }
+
     pub async fn scene(&self, id: Uuid) -> Result<Option<String>, StoreError> {
         Ok(sqlx::query_scalar("SELECT scene FROM jobs WHERE id = ?")
             .bind(id.to_string())

@@ -14,6 +14,17 @@
 //  5. `/?job=ID` reopens the finished job; the jobs list shows it;
 //  6. the cancel button cancels a running job;
 //  7. no uncaught page error at any point. A screenshot goes to SCREENSHOT.png.
+// Issue 17 (each with a screenshot beside SCREENSHOT.png, suffixed):
+//  - with no job open the state badge is hidden and the download links are disabled;
+//  - an example fills the editor as its file is written, and the draft survives a reload;
+//  - the job header shows size, samples and mode from the start; "Edit and re-render"
+//    brings back the job's scene as it was submitted (GET /v1/jobs/{id}/scene);
+//  - a scene with a lamp facing away from everything shows its warning;
+//  - a width-only size override keeps the scene's aspect;
+//  - on a narrow screen an open job's picture comes before the editor;
+//  - the time left reads as a range, "finishing" or "estimating", never "0 ms";
+//  - downloads are named after the job;
+//  - the iteration slider shows an earlier iteration's picture and comes back.
 "use strict";
 
 const fs = require("fs");
@@ -109,6 +120,10 @@ async function main() {
       return o && !/loading/.test(o.textContent);
     });
     check(!(await page.isVisible("#error.visible")), "examples load without an error");
+    check(!(await page.isVisible("#job-state")), "no state badge beside 'No job open'");
+    check((await page.getAttribute("#download-png", "aria-disabled")) === "true"
+      && !(await page.getAttribute("#download-png", "href")), "download links are disabled with no job open");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-empty.png"), fullPage: true });
 
     // 2. a scene error is located in the pasted JSON ---------------------------------------
     const bad = JSON.parse(JSON.stringify(FALLBACK_SCENE));
@@ -129,8 +144,16 @@ async function main() {
       const px = (e) => (e.scene.image ? e.scene.image.width * e.scene.image.height : 1e12);
       const k = examples.reduce((best, e, i) => (px(e) < px(examples[best]) ? i : best), 0);
       await page.selectOption("#example-select", String(k));
-      const loaded = JSON.parse(await page.inputValue("#scene-text"));
-      check(loaded.version === 1, "picking example '" + examples[k].name + "' fills the scene");
+      const asWritten = await page.inputValue("#scene-text");
+      check(typeof examples[k].text === "string" && asWritten === examples[k].text,
+        "picking example '" + examples[k].name + "' fills the editor with the file as written ("
+        + asWritten.split("\n").length + " lines)");
+      check(asWritten.indexOf('"version"') < asWritten.indexOf('"objects"'),
+        "its keys keep the file's order (version before objects, not alphabetised)");
+      await page.reload();
+      await page.waitForFunction(() => document.querySelector("#scene-text").value.length > 0);
+      check((await page.inputValue("#scene-text")) === asWritten, "the draft survives a reload");
+      const loaded = JSON.parse(asWritten);
       loaded.render = Object.assign({}, loaded.render, {
         samples_per_pixel: Math.min((loaded.render && loaded.render.samples_per_pixel) || 4, 4),
       });
@@ -151,6 +174,12 @@ async function main() {
     const jobId = (await page.textContent("#job-id")).trim();
     check(!(await page.isVisible("#error.visible")), "the scene is accepted (job " + jobId + ")");
     check(new URL(page.url()).searchParams.get("job") === jobId, "the address bar carries ?job=ID");
+    await page.waitForFunction(() => /96 × 72 px/.test(document.querySelector("#job-summary").textContent));
+    const summary = await page.textContent("#job-summary");
+    check(/4 samples per pixel/.test(summary) && /mode/.test(summary) && Number(await page.$eval("#frame-img", (i) => i.dataset.frames)) === 0,
+      "the header shows size, samples and mode before the first frame (" + summary + ")");
+    const etaQueued = await page.textContent("#eta");
+    check(!/^0 ms$/.test(etaQueued), "the time left of a waiting job is not '0 ms' (" + etaQueued + ")");
     await page.waitForFunction(() => document.querySelector("#status").textContent === "Streaming.");
     const cancelled = await api("POST", "/v1/jobs/" + blockerId + "/cancel");
     check(cancelled.status === 202, "blocker cancelled (" + cancelled.status + ")");
@@ -162,13 +191,40 @@ async function main() {
     await page.waitForFunction(() => document.querySelectorAll("#stats th").length >= 8, null, { timeout: T(120) });
     const statsText = await page.textContent("#stats");
     check(/pixels traced/.test(statsText) && /total time/.test(statsText), "the final statistics table is shown");
-    check((await page.textContent("#job-state")) === "succeeded", "the job succeeded");
+    check((await page.textContent("#job-state")) === "finished", "the job succeeded (badge: finished)");
+    check((await page.textContent("#eta")) !== "0 ms", "the time left of a finished job is not '0 ms'");
+    const dl = await page.getAttribute("#download-png", "download");
+    check(dl.endsWith(".png") && !dl.startsWith("glimpse-") && dl.length < 60
+      && (await page.getAttribute("#download-png", "aria-disabled")) === "false",
+      "the PNG download is live and named after the job (" + dl + ")");
+    await page.click("#edit-job");
+    const back = await page.inputValue("#scene-text");
+    const submitted = (await api("GET", "/v1/jobs/" + jobId + "/scene")).text;
+    check(back === submitted && JSON.parse(back).image.width === 96,
+      "'Edit and re-render' brings back the job's scene as submitted");
     const iteration = await page.textContent("#iteration");
     const fraction = await page.textContent("#pixel-fraction");
     check(/^\d+$/.test(iteration) && /%$/.test(fraction), "iteration " + iteration + ", pixels " + fraction);
     check(await page.$$eval("#iterations tr", (r) => r.length) >= 2, "per-iteration timings are listed");
+    check(Number(iteration) === (await page.$$eval("#stats th", (ths) => {
+      const th = ths.find((t) => t.textContent === "iterations");
+      return th ? Number(th.nextElementSibling.textContent) : -1;
+    })), "the iterations card agrees with the statistics (" + iteration + ")");
     const frames = await page.$eval("#frame-img", (i) => Number(i.dataset.frames));
     console.log("  frames received: " + frames);
+    // The iteration slider goes back to the first picture and forward to the last.
+    check(!(await page.isDisabled("#iteration-slider")), "the iteration slider is live after " + frames + " frames");
+    const latestSrc = await page.getAttribute("#frame-img", "src");
+    await page.$eval("#iteration-slider", (sl) => { sl.value = "0"; sl.dispatchEvent(new Event("input")); });
+    await page.waitForFunction((old) => {
+      const i = document.querySelector("#frame-img");
+      return i.src !== old && i.dataset.shown === "0" && i.complete && i.naturalWidth > 0;
+    }, latestSrc);
+    const shownLabel = await page.textContent("#iteration-shown");
+    check(/^iteration 1 of \d+$/.test(shownLabel), "moving it shows an earlier iteration (" + shownLabel + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-slider.png"), fullPage: false });
+    await page.$eval("#iteration-slider", (sl) => { sl.value = sl.max; sl.dispatchEvent(new Event("input")); });
+    check(/latest/.test(await page.textContent("#iteration-shown")), "and back to the latest");
 
     // 4. the distance layer -----------------------------------------------------------------
     await page.waitForFunction(() => {
@@ -195,6 +251,17 @@ async function main() {
     check(/object/.test(await page.textContent("#legend")), "the objects legend is shown");
     await page.check("#layer-distance");
     await page.waitForFunction(() => document.querySelector("#frame-img").dataset.layer === "distance");
+    // At 1440×900 the legend sits beside the picture, both in view.
+    await page.setViewportSize({ width: 1440, height: 900 });
+    await page.evaluate(() => document.querySelector("#frame-img").scrollIntoView({ block: "nearest" }));
+    const [imgBox, legendBox] = await page.evaluate(() => ["#frame-img", "#legend"].map((q) => {
+      const r = document.querySelector(q).getBoundingClientRect();
+      return { left: r.left, right: r.right, top: r.top, bottom: r.bottom };
+    }));
+    check(legendBox.left >= imgBox.right - 1 && legendBox.bottom <= 900 && imgBox.bottom <= 900,
+      "at 1440×900 the legend is beside the picture and both are in view");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-legend.png"), fullPage: false });
+    await page.setViewportSize({ width: 1280, height: 900 });
     await page.screenshot({ path: shotPath, fullPage: true });
     console.log("  screenshot: " + shotPath);
     await page.check("#layer-image");
@@ -229,6 +296,103 @@ async function main() {
     check(true, "a job opens from the jobs list");
     const href = await page.getAttribute("#download-exr", "href");
     check(href === "/v1/jobs/" + jobId + "/frame?format=exr", "the EXR download link points at the job");
+
+    // 5b. warnings, width-only override, narrow layout -------------------------------------------
+    const away = JSON.parse(JSON.stringify(FALLBACK_SCENE));
+    away.name = "lamp-facing-away";
+    away.lights = [];
+    away.objects.push({ type: "quad", corner: [-0.5, 5, -0.5], edge_u: [1, 0, 0], edge_v: [0, 0, -1], material: "lamp" });
+    away.materials.lamp = { type: "emissive", radiance: [20, 20, 20] };
+    await page.fill("#scene-text", JSON.stringify(away, null, 2));
+    await page.fill("#width-override", "120");
+    await page.fill("#height-override", "");
+    await page.click("#submit");
+    await page.waitForSelector("#warnings.visible");
+    const warned = await page.textContent("#warnings");
+    check(/objects\[2\]/.test(warned) && /faces away/.test(warned), "the lamp facing away is warned about (" + warned.slice(0, 70) + "…)");
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.complete && i.naturalWidth > 0 && Number(i.dataset.frames) > 0;
+    }, null, { timeout: T(120) });
+    const wdims = await page.$eval("#frame-img", (i) => [i.naturalWidth, i.naturalHeight]);
+    check(wdims[0] === 120 && wdims[1] === 90, "a width-only override keeps the aspect (" + wdims.join("x") + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-warning.png"), fullPage: true });
+    await page.setViewportSize({ width: 390, height: 844 });
+    const order = await page.evaluate(() => [document.querySelector("#frame-img").getBoundingClientRect().top,
+      document.querySelector("#scene-text").getBoundingClientRect().top]);
+    check(order[0] < order[1] && order[0] < 844, "on a narrow screen the open job's picture comes first (" + order.map(Math.round).join(" < ") + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-narrow-job.png"), fullPage: false });
+    await page.setViewportSize({ width: 1280, height: 900 });
+    await page.fill("#width-override", "");
+
+    // 5c. zoom and pan, smooth downscaling -------------------------------------------------------
+    const big = JSON.parse(JSON.stringify(FALLBACK_SCENE));
+    big.name = "zoom-test";
+    big.render = { mode: "reference", samples_per_pixel: 1, max_bounces: 1, seed: 1 };
+    await page.fill("#scene-text", JSON.stringify(big, null, 2));
+    await page.fill("#width-override", "400");
+    await page.fill("#height-override", "");
+    await page.click("#submit");
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.complete && i.naturalWidth === 400 && document.querySelector("#job-state").textContent === "finished";
+    }, null, { timeout: T(120) });
+    await page.setViewportSize({ width: 390, height: 844 });
+    const fit = await page.$eval("#frame-img", (i) => [i.getBoundingClientRect().width, getComputedStyle(i).imageRendering]);
+    check(fit[0] < 400 && fit[1] === "auto", "fit shrinks the picture smoothly (" + Math.round(fit[0]) + " px, " + fit[1] + ")");
+    await page.click("#zoom-1");
+    const one = await page.$eval("#frame-img", (i) => Math.round(i.getBoundingClientRect().width));
+    check(one === 400, "1:1 shows one image pixel per screen pixel (" + one + " px)");
+    const box = await page.locator("#stage").boundingBox();
+    await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+    await page.mouse.down();
+    await page.mouse.move(box.x + box.width / 2 - 60, box.y + box.height / 2, { steps: 5 });
+    await page.mouse.up();
+    const panned = await page.$eval("#stage", (st) => st.scrollLeft);
+    check(panned > 20, "dragging pans the zoomed picture (" + panned + " px)");
+    await page.click("#zoom-2");
+    const two = await page.$eval("#frame-img", (i) => [Math.round(i.getBoundingClientRect().width), getComputedStyle(i).imageRendering]);
+    check(two[0] === 800 && two[1] === "pixelated", "2:1 doubles it with visible pixels (" + two.join(", ") + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-zoom.png"), fullPage: false });
+    await page.click("#zoom-fit");
+    await page.setViewportSize({ width: 1280, height: 900 });
+    await page.fill("#width-override", "");
+
+    // 5d. the live jobs list: place in line, size and mode, picture, delete, re-run ----------------
+    const zoomId = (await page.textContent("#job-id")).trim();
+    const hold = await api("POST", "/v1/jobs", BLOCKER_SCENE);
+    blockerId = hold.json.id;
+    const waiter = await api("POST", "/v1/jobs", Object.assign({}, FALLBACK_SCENE, { name: "browser-test-waiter" }));
+    await page.waitForFunction((id) => {
+      const tr = document.querySelector(`#jobs tr[data-job="${id}"]`);
+      return tr && /1st in line/.test(tr.textContent);
+    }, waiter.json.id, { timeout: T(10) });
+    check(true, "the list shows a waiting job's place in line without a refresh");
+    await api("POST", "/v1/jobs/" + waiter.json.id + "/cancel");
+    await api("POST", "/v1/jobs/" + blockerId + "/cancel");
+    blockerId = null;
+    await page.waitForFunction((id) => {
+      const tr = document.querySelector(`#jobs tr[data-job="${id}"]`);
+      return tr && tr.dataset.state === "cancelled";
+    }, waiter.json.id, { timeout: T(10) });
+    check(true, "states change in the list by themselves");
+    const row = `#jobs tr[data-job="${zoomId}"]`;
+    await page.waitForSelector(row + " img.thumb");
+    const sizeText = await page.textContent(row + " td.size");
+    check(/400 × 300 px/.test(sizeText) && /reference/.test(sizeText), "a row shows size, samples and mode (" + sizeText + ") and a picture");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-jobs.png"), fullPage: true });
+    await page.click(row + " button.rerun");
+    await page.waitForFunction((id) => {
+      const t = document.querySelector("#job-id").textContent;
+      return t && t !== id;
+    }, zoomId);
+    const rerunId = (await page.textContent("#job-id")).trim();
+    const a = (await api("GET", "/v1/jobs/" + zoomId + "/scene")).text;
+    const b = (await api("GET", "/v1/jobs/" + rerunId + "/scene")).text;
+    check(a === b, "Re-run submits the same scene as a new job");
+    await page.click(row + " button.delete");
+    await page.waitForFunction((sel) => !document.querySelector(sel), row, { timeout: T(10) });
+    check((await api("GET", "/v1/jobs/" + zoomId)).status === 404, "Delete forgets the job");
 
     // 6. cancel from the page --------------------------------------------------------------------
     await page.fill("#width-override", "");

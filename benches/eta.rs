@@ -1,0 +1,170 @@
+//! How honest the time left is, and how soon the first picture comes (issue 17).
+//!
+//! For every bundled example at its own size, a progressive render records after each
+//! frame the estimate of `progressive::eta` and the time elapsed. Once the render has
+//! ended (total T), the estimate standing at 25, 50 and 75 % of T (the last frame at or
+//! before that moment) is compared with the time that was in fact left:
+//! error = |estimate − left| / left, the estimate being the range's middle; "finishing"
+//! counts as one mean iteration time left, and an unknown estimate counts as 100 % off.
+//! Medians over `RUNS` runs per scene, then per scene and over all scenes.
+//!
+//! Then the time from the start of a render to its first frame, for the Cornell box at
+//! 320×240, 1024×768 and 2048² (medians of `RUNS`); a render's start is when a worker
+//! begins (the service adds its queue and the scene's parse before it).
+//!
+//! Run: `cargo bench --bench eta` (2–4 minutes on 2 cores).
+
+use glimpse::cancel::CancelToken;
+use glimpse::progressive::eta::{Eta, EtaTracker};
+use glimpse::progressive::{self, Frame, RenderOptions};
+use glimpse::scene::examples::EXAMPLES;
+use glimpse::scene::{parse_scene, Limits, Scene, SceneOrigin};
+use glimpse::tracer::PathTracer;
+use std::time::Instant;
+
+const RUNS: usize = 3;
+const AT: [f64; 3] = [0.25, 0.5, 0.75];
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    }
+}
+
+/// (elapsed ms, estimate) after each frame, and the total time.
+fn observe(scene: &Scene) -> (Vec<(f64, Eta)>, f64) {
+    let tracer = PathTracer::new(scene);
+    let mut tracker = EtaTracker::new(
+        f64::from(scene.progressive.t0),
+        scene.progressive.max_iterations,
+    );
+    let start = Instant::now();
+    let mut seen = Vec::new();
+    let trace = std::env::var_os("ETA_TRACE").is_some();
+    let mut on_frame = |f: &Frame| {
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let eta = tracker.update(f, ms);
+        if trace {
+            let d = f
+                .stats
+                .per_iteration
+                .last()
+                .map_or(f64::NAN, |s| s.mean_distance);
+            eprintln!(
+                "  {} it {} at {ms:.0} ms: d {d:.3}, traced {:.3}, eta {:?}",
+                scene.name,
+                f.iteration,
+                f.stats.pixel_fraction,
+                eta.ms()
+            );
+        }
+        seen.push((ms, eta));
+    };
+    let opts = RenderOptions {
+        mode: Some(glimpse::scene::RenderMode::Progressive),
+        ..RenderOptions::default()
+    };
+    progressive::render(scene, &tracer, &opts, &mut on_frame, &CancelToken::new())
+        .expect("not cancelled");
+    (seen, start.elapsed().as_secs_f64() * 1e3)
+}
+
+/// Relative error of the estimate standing at `share` of the run.
+fn error_at(seen: &[(f64, Eta)], total: f64, share: f64) -> f64 {
+    let at = share * total;
+    let Some(&(ms, eta)) = seen.iter().rev().find(|(ms, _)| *ms <= at) else {
+        return 1.0;
+    };
+    let left = total - ms;
+    let per_iteration = ms / seen.iter().filter(|(m, _)| *m <= at).count() as f64;
+    let guess = match eta {
+        Eta::Left { ms, .. } => ms,
+        Eta::Finishing => per_iteration,
+        Eta::Done => 0.0,
+        Eta::Unknown => return 1.0,
+    };
+    (guess - left).abs() / left.max(1e-9)
+}
+
+fn first_frame_ms(scene: &Scene) -> f64 {
+    let tracer = PathTracer::new(scene);
+    let start = Instant::now();
+    let mut first = None;
+    let cancel = CancelToken::new();
+    let mut on_frame = |_: &Frame| {
+        if first.is_none() {
+            first = Some(start.elapsed().as_secs_f64() * 1e3);
+            cancel.cancel();
+        }
+    };
+    let _ = progressive::render(
+        scene,
+        &tracer,
+        &RenderOptions::default(),
+        &mut on_frame,
+        &cancel,
+    );
+    first.unwrap_or(f64::NAN)
+}
+
+fn main() {
+    let mut all: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
+    println!("ETA error (median of {RUNS} runs) at 25 / 50 / 75 % of the run:");
+    for (name, text) in EXAMPLES {
+        let scene = parse_scene(text, &SceneOrigin::Request, &Limits::command_line())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let mut per: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
+        let mut totals = Vec::new();
+        let mut frames = Vec::new();
+        for _ in 0..RUNS {
+            let (seen, total) = observe(&scene);
+            for (k, &share) in AT.iter().enumerate() {
+                per[k].push(error_at(&seen, total, share));
+            }
+            totals.push(total);
+            frames.push(seen.len() as f64);
+        }
+        let m: Vec<f64> = per.into_iter().map(median).collect();
+        println!(
+            "  {name:<15} {:>5.0} % {:>5.0} % {:>5.0} %   (run {:.0} ms, {:.0} frames)",
+            m[0] * 100.0,
+            m[1] * 100.0,
+            m[2] * 100.0,
+            median(totals),
+            median(frames)
+        );
+        for (k, v) in m.into_iter().enumerate() {
+            all[k].push(v);
+        }
+    }
+    let m: Vec<f64> = all.into_iter().map(median).collect();
+    println!(
+        "  {:<15} {:>5.0} % {:>5.0} % {:>5.0} %   (target ≤ 30 %)",
+        "median",
+        m[0] * 100.0,
+        m[1] * 100.0,
+        m[2] * 100.0
+    );
+
+    println!("First frame after the render starts (median of {RUNS}), cornell-box:");
+    let text = EXAMPLES
+        .iter()
+        .find(|(n, _)| *n == "cornell-box")
+        .map(|(_, t)| *t)
+        .expect("bundled");
+    for (w, h) in [(320, 240), (1024, 768), (2048, 2048)] {
+        let mut scene =
+            parse_scene(text, &SceneOrigin::Request, &Limits::command_line()).expect("valid");
+        scene.width = w;
+        scene.height = h;
+        let t: Vec<f64> = (0..RUNS).map(|_| first_frame_ms(&scene)).collect();
+        println!("  {w}x{h}: {:.0} ms (target ≤ 300 ms)", median(t));
+    }
+}

@@ -1,0 +1,306 @@
+//! How long a progressive render has left: one estimator for the service's `progress`
+//! and the command line's progress bar.
+//!
+//! Method: the mean perceptual distance between successive frames (`mean_distance` of
+//! each iteration, F&P04 §4.2) shrinks roughly geometrically as the mesh refines, and the
+//! render is done when it falls below `t0`. We fit `ln d_k = a + b·k` by least squares over
+//! the last [`EtaTracker::WINDOW`] iterations with `d_k > 0`; if `b < 0` the iterations
+//! still needed are `n = k* − k` with `k* = (ln t0 − a) / b` (capped at `max_iterations`).
+//! Later iterations are shorter (fewer triangles are left to refine), so the time left is
+//! not `n` times an iteration so far but a shrinking series: the mean of the last two
+//! iterations' times `τ` times `r + r² + … + rⁿ` with `r` = [`TAIL_RATIO`]. With `t0 = 0`
+//! ("every pixel ends up traced") the traced-pixel fraction is extrapolated linearly
+//! instead.
+//!
+//! The answer is a range, never a bare number: the fit's confidence (R² shrunk by the
+//! number of points, `R² · n / (n + 2)`, so two points never claim certainty) widens it.
+//! When at most one iteration is predicted to remain the answer is [`Eta::Finishing`], so
+//! a running render never reads "0 ms left".
+
+use super::Frame;
+
+/// How much shorter each iteration is than the one before, once the loop refines: on the
+/// bundled scenes the iterations after the longest take 0.6–0.8 of their predecessor's
+/// time (`ETA_TRACE=1 cargo bench --bench eta` prints every frame).
+pub const TAIL_RATIO: f64 = 0.75;
+
+/// What is known of the time left.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Eta {
+    /// Too early to tell (fewer than two usable iterations, or the error does not fall).
+    Unknown,
+    /// At most about one iteration is left.
+    Finishing,
+    /// Between `low_ms` and `high_ms` left; `ms` is the central estimate.
+    Left {
+        ms: f64,
+        low_ms: f64,
+        high_ms: f64,
+        confidence: f64,
+    },
+    /// The render has ended.
+    Done,
+}
+
+impl Eta {
+    /// A range around `ms` whose half-width shrinks from ±100 % to ±25 % as the
+    /// confidence grows from 0 to 1.
+    #[must_use]
+    pub fn around(ms: f64, confidence: f64) -> Self {
+        let c = confidence.clamp(0.0, 1.0);
+        let spread = 0.25 + 0.75 * (1.0 - c);
+        Self::Left {
+            ms,
+            low_ms: ms * (1.0 - spread).max(0.0),
+            high_ms: ms * (1.0 + spread),
+            confidence: c,
+        }
+    }
+
+    /// The central estimate in ms, when there is one (`Finishing` and `Done` have none).
+    #[must_use]
+    pub fn ms(&self) -> Option<f64> {
+        match self {
+            Self::Left { ms, .. } => Some(*ms),
+            _ => None,
+        }
+    }
+
+    /// In words, for a person: "4.2–6.0 s left", "finishing", "estimating…", "done".
+    #[must_use]
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Unknown => "estimating time left…".into(),
+            Self::Finishing => "finishing".into(),
+            Self::Done => "done".into(),
+            Self::Left {
+                low_ms, high_ms, ..
+            } => {
+                format!("{}–{} left", seconds(*low_ms), seconds(*high_ms))
+            }
+        }
+    }
+}
+
+/// A duration in words with its unit: "850 ms", "4.2 s", "3 min 10 s".
+#[must_use]
+pub fn seconds(ms: f64) -> String {
+    if ms < 1000.0 {
+        format!("{:.0} ms", ms.max(0.0))
+    } else if ms < 60_000.0 {
+        format!("{:.1} s", ms / 1e3)
+    } else {
+        let s = (ms / 1e3).round() as u64;
+        format!("{} min {} s", s / 60, s % 60)
+    }
+}
+
+/// Follows one render's frames and estimates the time left after each.
+#[derive(Debug)]
+pub struct EtaTracker {
+    t0: f64,
+    max_iterations: u32,
+    points: Vec<(f64, f64)>,
+    /// Elapsed time at each frame so far.
+    frame_ms: Vec<f64>,
+}
+
+impl EtaTracker {
+    /// Iterations the decay is fitted over.
+    pub const WINDOW: usize = 6;
+
+    #[must_use]
+    pub fn new(t0: f64, max_iterations: u32) -> Self {
+        Self {
+            t0,
+            max_iterations,
+            points: Vec::new(),
+            frame_ms: Vec::new(),
+        }
+    }
+
+    /// The estimate after `frame`, `elapsed_ms` into the render.
+    pub fn update(&mut self, frame: &Frame, elapsed_ms: f64) -> Eta {
+        let d = frame
+            .stats
+            .per_iteration
+            .last()
+            .map_or(frame.stats.final_mean_distance, |s| s.mean_distance);
+        if d.is_finite() && d > 0.0 {
+            self.points.push((f64::from(frame.iteration), d.ln()));
+            if self.points.len() > Self::WINDOW {
+                self.points.remove(0);
+            }
+        }
+        self.frame_ms.push(elapsed_ms);
+        if frame.last {
+            return Eta::Done;
+        }
+        if self.t0 <= 0.0 {
+            let f = frame.stats.pixel_fraction;
+            if f > 0.0 && f < 1.0 {
+                return Eta::around(elapsed_ms * (1.0 - f) / f, 0.5);
+            }
+            return Eta::Unknown;
+        }
+        let Some(fit) = fit_line(&self.points) else {
+            return Eta::Unknown;
+        };
+        if fit.slope >= 0.0 {
+            return Eta::Unknown;
+        }
+        let k_now = f64::from(frame.iteration);
+        // Iterations are numbered from 0, so the last possible one is max_iterations − 1.
+        let k_last = f64::from(self.max_iterations.saturating_sub(1));
+        let k_star = ((self.t0.ln() - fit.intercept) / fit.slope).min(k_last);
+        let remaining = k_star - k_now;
+        if remaining <= 1.0 {
+            return Eta::Finishing;
+        }
+        let n = self.points.len() as f64;
+        let series = TAIL_RATIO * (1.0 - TAIL_RATIO.powf(remaining)) / (1.0 - TAIL_RATIO);
+        Eta::around(self.recent_iteration_ms() * series, fit.r2 * n / (n + 2.0))
+    }
+
+    /// The mean time of the last two iterations (the first one counts from the start).
+    fn recent_iteration_ms(&self) -> f64 {
+        let t = &self.frame_ms;
+        let durations: Vec<f64> = t
+            .iter()
+            .enumerate()
+            .map(|(k, &ms)| if k == 0 { ms } else { ms - t[k - 1] })
+            .collect();
+        let last = &durations[durations.len().saturating_sub(2)..];
+        last.iter().sum::<f64>() / last.len().max(1) as f64
+    }
+}
+
+struct Line {
+    intercept: f64,
+    slope: f64,
+    r2: f64,
+}
+
+/// Least-squares line through `points`; `None` for fewer than two distinct x.
+fn fit_line(points: &[(f64, f64)]) -> Option<Line> {
+    if points.len() < 2 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (sx, sy) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    let (mx, my) = (sx / n, sy / n);
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for (x, y) in points {
+        sxx += (x - mx) * (x - mx);
+        sxy += (x - mx) * (y - my);
+        syy += (y - my) * (y - my);
+    }
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    let r2 = if syy > 0.0 {
+        (sxy * sxy / (sxx * syy)).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    Some(Line {
+        intercept: my - slope * mx,
+        slope,
+        r2,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::progressive::stats::{IterationStats, RenderStats};
+    use crate::progressive::{ClassCell, SampleCell};
+    use crate::raster::{Image, Rgb};
+
+    fn frame(iteration: u32, d: f64, last: bool) -> Frame {
+        Frame {
+            iteration,
+            image: Image::filled(1, 1, Rgb::ZERO),
+            samples: Image::filled(1, 1, SampleCell::New),
+            distance: None,
+            classes: Image::filled(1, 1, ClassCell::None),
+            objects: std::sync::Arc::new(Image::filled(1, 1, 0)),
+            stats: RenderStats {
+                per_iteration: vec![IterationStats {
+                    iteration,
+                    mean_distance: d,
+                    ..Default::default()
+                }],
+                final_mean_distance: d,
+                pixel_fraction: 0.1,
+                ..Default::default()
+            },
+            last,
+        }
+    }
+
+    #[test]
+    fn follows_a_geometric_decay_as_a_range() {
+        // d_k = 16 / 2^k reaches t0 = 1 at k = 4; after iteration 1 (2 iterations of
+        // 100 ms) three remain, each 3/4 of the one before: 100·(0.75 + 0.75² + 0.75³)
+        // = 173.4375 ms; perfect fit, confidence 2/4.
+        let mut t = EtaTracker::new(1.0, 64);
+        assert_eq!(t.update(&frame(0, 16.0, false), 100.0), Eta::Unknown);
+        let eta = t.update(&frame(1, 8.0, false), 200.0);
+        let Eta::Left {
+            ms,
+            low_ms,
+            high_ms,
+            confidence,
+        } = eta
+        else {
+            panic!("{eta:?}")
+        };
+        assert!((ms - 173.4375).abs() < 1e-6, "{eta:?}");
+        assert!((confidence - 0.5).abs() < 1e-9, "{eta:?}");
+        // ±(0.25 + 0.75·0.5) = ±62.5 %.
+        assert!((low_ms - 65.039_062_5).abs() < 1e-6 && (high_ms - 281.835_937_5).abs() < 1e-6);
+        assert_eq!(eta.describe(), "65 ms–282 ms left");
+    }
+
+    #[test]
+    fn says_finishing_instead_of_zero_while_running() {
+        // After iteration 3 of the same decay one iteration (k = 4) is left.
+        let mut t = EtaTracker::new(1.0, 64);
+        for k in 0..3 {
+            t.update(&frame(k, 16.0 / f64::from(1 << k), false), 100.0);
+        }
+        assert_eq!(t.update(&frame(3, 2.0, false), 400.0), Eta::Finishing);
+        assert_eq!(Eta::Finishing.describe(), "finishing");
+    }
+
+    #[test]
+    fn is_unknown_when_the_error_does_not_fall_and_done_at_the_end() {
+        let mut t = EtaTracker::new(1.0, 64);
+        t.update(&frame(0, 4.0, false), 10.0);
+        assert_eq!(t.update(&frame(1, 5.0, false), 20.0), Eta::Unknown);
+        assert_eq!(t.update(&frame(2, f64::NAN, true), 30.0), Eta::Done);
+    }
+
+    #[test]
+    fn is_capped_by_max_iterations() {
+        // Very slow decay: k* would be huge; capped at 10 iterations in all (k = 9), so
+        // 8 remain after k = 1, the first 3/4 of 10 ms: 10·3·(1 − 0.75⁸).
+        let mut t = EtaTracker::new(1.0, 10);
+        t.update(&frame(0, 100.0, false), 10.0);
+        let eta = t.update(&frame(1, 99.0, false), 20.0);
+        let want = 30.0 * (1.0 - 0.75f64.powi(8));
+        assert!((eta.ms().unwrap() - want).abs() < 1e-6, "{eta:?}");
+    }
+
+    #[test]
+    fn durations_read_with_their_unit() {
+        assert_eq!(seconds(850.4), "850 ms");
+        assert_eq!(seconds(4_240.0), "4.2 s");
+        assert_eq!(seconds(190_000.0), "3 min 10 s");
+        assert_eq!(seconds(-3.0), "0 ms");
+    }
+}

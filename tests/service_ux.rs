@@ -1,0 +1,187 @@
+//! What a person gets back from the service (issue 17): a job's scene exactly as it was
+//! written, and warnings for scenes that are valid but almost surely wrong, in the 201
+//! answer and on the command line's stderr. The real binary on a loopback port.
+
+mod common;
+
+use common::LIT_SCENE;
+use std::process::Command;
+use std::time::Duration;
+
+/// The lit scene with its lamp turned to face the sky: nothing in front of it.
+fn lamp_facing_away() -> String {
+    let s = LIT_SCENE.replace(
+        r#""edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
+      "material": "lamp""#,
+        r#""edge_u": [1, 0, 0], "edge_v": [0, 0, -1],
+      "material": "lamp""#,
+    );
+    assert_ne!(s, LIT_SCENE, "the lamp was turned");
+    s
+}
+
+#[tokio::test]
+async fn a_jobs_scene_comes_back_as_written_and_warnings_come_with_the_201() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+
+    // Keys out of alphabetical order, `version` first, odd spacing, numbers as written.
+    let written = LIT_SCENE.replace(r#""version": 1,"#, "\"version\":1 ,   ");
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(written.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    assert!(
+        created.get("warnings").is_none(),
+        "a good scene warns of nothing: {created}"
+    );
+    let id = created["id"].as_str().unwrap().to_owned();
+    let back = c
+        .get(format!("{base}/v1/jobs/{id}/scene"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(back.status(), 200);
+    assert_eq!(
+        back.headers()["content-type"].to_str().unwrap(),
+        "application/json"
+    );
+    assert_eq!(back.text().await.unwrap(), written, "byte for byte");
+    // Still so after the job ended and the server restarted.
+    common::wait_state(&c, &base, &id, "succeeded", Duration::from_secs(60)).await;
+    server.terminate().await;
+    let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let again = c
+        .get(format!("{base}/v1/jobs/{id}/scene"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert_eq!(again, written);
+    let missing = c
+        .get(format!(
+            "{base}/v1/jobs/00000000-0000-7000-8000-000000000000/scene"
+        ))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(missing.status(), 404);
+    let e: serde_json::Value = missing.json().await.unwrap();
+    assert_eq!(e["error"]["code"], "not_found");
+
+    // A lamp facing away from everything: accepted, with the warning naming it.
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(lamp_facing_away())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let warnings = created["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1, "{created}");
+    let w = warnings[0].as_str().unwrap();
+    assert!(w.contains("objects[2]") && w.contains("faces away"), "{w}");
+}
+
+#[test]
+fn the_command_line_prints_scene_warnings_on_stderr() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("away.json"), lamp_facing_away()).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(dir.path())
+        .args([
+            "render",
+            "away.json",
+            "--output",
+            "away.png",
+            "--mode",
+            "reference",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with("warning: objects[2]") && l.contains("faces away")),
+        "{err}"
+    );
+}
+
+#[tokio::test]
+async fn retention_forgets_the_oldest_finished_jobs_and_their_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    let mut ids = Vec::new();
+    for _ in 0..3 {
+        let r = c
+            .post(format!("{base}/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(LIT_SCENE)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 201);
+        let id = r.json::<serde_json::Value>().await.unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_owned();
+        common::wait_state(&c, &base, &id, "succeeded", Duration::from_secs(60)).await;
+        ids.push(id);
+    }
+    for id in &ids {
+        assert!(dir.path().join("jobs").join(id).join("image.png").exists());
+    }
+    server.terminate().await;
+    // Keep one: the two oldest go, with their folders; the newest stays.
+    let _server = common::spawn(dir.path(), port, None, &["--keep-jobs", "1"], &[], &c).await;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        let gone = c
+            // The policy forgets newest first, so the oldest goes last.
+            .get(format!("{base}/v1/jobs/{}", ids[0]))
+            .send()
+            .await
+            .unwrap()
+            .status()
+            == 404;
+        if gone {
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "retention never ran");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    for id in &ids[..2] {
+        let st = c
+            .get(format!("{base}/v1/jobs/{id}"))
+            .send()
+            .await
+            .unwrap()
+            .status();
+        assert_eq!(st, 404, "{id}");
+        assert!(!dir.path().join("jobs").join(id).exists(), "{id}'s files");
+    }
+    let newest = common::job(&c, &base, &ids[2]).await;
+    assert_eq!(newest["state"], "succeeded");
+    assert!(dir
+        .path()
+        .join("jobs")
+        .join(&ids[2])
+        .join("image.png")
+        .exists());
+}
