@@ -146,13 +146,17 @@ pub struct ConductorDoc {
 }
 
 /// glTF 2.0's metallic-roughness material (our extension for imported scenes):
-/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²).
+/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²);
+/// an optional `texture` replaces `base_color` (glTF's `baseColorFactor` goes into an
+/// image texture's `factor`).
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MetallicRoughnessDoc {
     pub base_color: V3,
     pub metallic: f32,
     pub roughness: f32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureDoc>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -179,12 +183,58 @@ pub struct EmissiveDoc {
     pub two_sided: bool,
 }
 
-/// Procedural textures (`"type"`: checker, noise); both have the same fields.
+/// Textures (`"type"`: checker, noise: procedural, with the same fields; image: our
+/// extension, looked up at the surface's `uvs`).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum TextureDoc {
     Checker(TextureFields),
     Noise(TextureFields),
+    Image(ImageTextureDoc),
+}
+
+/// An image texture (our extension for imported scenes): the file inline as a `data:`
+/// URI (PNG, JPEG or TGA), how its values encode light (default `srgb`), what lies
+/// outside it (`wrap`, default `repeat`), the mapping `uv × uv_scale + uv_offset`
+/// (defaults `[1, 1]`, `[0, 0]`; (0, 0) is the image's top-left corner) and a `factor`
+/// in [0, 1] that multiplies every texel (default `[1, 1, 1]`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageTextureDoc {
+    pub data: String,
+    #[serde(default = "default_encoding")]
+    pub encoding: super::image::Encoding,
+    #[serde(default = "default_wrap")]
+    pub wrap: WrapDoc,
+    #[serde(default = "default_uv_scale")]
+    pub uv_scale: [f32; 2],
+    #[serde(default)]
+    pub uv_offset: [f32; 2],
+    #[serde(default = "default_factor")]
+    pub factor: V3,
+}
+
+fn default_encoding() -> super::image::Encoding {
+    super::image::Encoding::Srgb
+}
+fn default_wrap() -> WrapDoc {
+    WrapDoc::Repeat
+}
+fn default_uv_scale() -> [f32; 2] {
+    [1.0, 1.0]
+}
+fn default_factor() -> V3 {
+    [1.0; 3]
+}
+
+/// An image texture's `wrap`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WrapDoc {
+    Repeat,
+    Clamp,
+    Mirror,
+    Black,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -308,6 +358,10 @@ pub struct MeshDoc {
     pub indices: Vec<[u64; 3]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normals: Option<Vec<V3>>,
+    /// Texture coordinates per position (our extension): `[u, v]`, (0, 0) the top-left
+    /// corner of an image texture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uvs: Option<Vec<[f32; 2]>>,
     pub material: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
@@ -499,9 +553,10 @@ impl<'de> Deserialize<'de> for MaterialDoc {
 
 impl<'de> Deserialize<'de> for TextureDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let (t, rest) = tagged(d, "texture", &["checker", "noise"])?;
+        let (t, rest) = tagged(d, "texture", &["checker", "noise", "image"])?;
         match t.as_str() {
             "checker" => variant(rest).map(TextureDoc::Checker),
+            "image" => variant(rest).map(TextureDoc::Image),
             _ => variant(rest).map(TextureDoc::Noise),
         }
     }

@@ -5,6 +5,7 @@
 
 pub mod doc;
 pub mod duplicates;
+pub mod image;
 pub mod obj;
 pub mod transform;
 pub mod validate;
@@ -14,7 +15,8 @@ pub use validate::{
     MAX_COORDINATE,
 };
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
+use std::sync::Arc;
 
 /// Index of a material in [`Scene::materials`].
 pub type MaterialId = u32;
@@ -37,6 +39,9 @@ pub struct Scene {
     /// One entry per document object, in document order (index = [`ObjectId`]).
     pub shapes: Vec<Shape>,
     pub lights: Vec<Light>,
+    /// Decoded image textures, addressed by [`ImageMap::image`] (shared, not copied, by
+    /// every tracer built from this scene).
+    pub images: Vec<Arc<TextureImage>>,
     pub render: RenderSettings,
     pub progressive: ProgressiveSettings,
     /// Soft problems (ignored degenerate triangles, ...), with their JSON paths.
@@ -73,7 +78,7 @@ impl Default for Display {
     }
 }
 
-/// A surface's reflectance, constant or procedural.
+/// A surface's reflectance, constant, procedural or an image.
 #[derive(Clone, Copy, Debug)]
 pub enum Texture {
     Constant(Vec3),
@@ -89,6 +94,49 @@ pub enum Texture {
         a: Vec3,
         b: Vec3,
     },
+    /// An image looked up at the surface's texture coordinates.
+    Image(ImageMap),
+}
+
+impl Texture {
+    /// Whether looking it up needs the surface's texture coordinates.
+    #[must_use]
+    pub fn uses_uv(&self) -> bool {
+        matches!(self, Texture::Image(_))
+    }
+}
+
+/// How an image is mapped: texel (s, t) = uv × `scale` + `offset`, in units of the whole
+/// image, (0, 0) its top-left corner and t growing downwards (glTF's convention).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageMap {
+    /// Index into [`Scene::images`].
+    pub image: u32,
+    /// Multiplies every texel (glTF `baseColorFactor`, pbrt `scale`).
+    pub factor: Vec3,
+    pub wrap: Wrap,
+    pub scale: Vec2,
+    pub offset: Vec2,
+}
+
+/// What a lookup outside [0, 1) of the image returns (glTF samplers, pbrt `wrap`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wrap {
+    Repeat,
+    Clamp,
+    /// Mirrored repeat: every other copy flipped.
+    Mirror,
+    /// Black outside the image.
+    Black,
+}
+
+/// A decoded image: linear RGB texels, row 0 at the top of the picture.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TextureImage {
+    pub width: u32,
+    pub height: u32,
+    /// `width × height` texels, row-major.
+    pub texels: Vec<Vec3>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -108,7 +156,7 @@ pub enum Material {
     },
     /// glTF 2.0 metallic-roughness (glTF spec Appendix B).
     MetallicRoughness {
-        base_color: Vec3,
+        base_color: Texture,
         metallic: f32,
         roughness: f32,
     },
@@ -125,7 +173,21 @@ pub enum Material {
     },
 }
 
-/// One triangle in world space. Shading normals are optional (mesh `normals`).
+impl Material {
+    /// Whether shading it needs the surface's texture coordinates (an image texture).
+    #[must_use]
+    pub fn uses_uv(&self) -> bool {
+        match self {
+            Material::Diffuse { albedo: t } | Material::MetallicRoughness { base_color: t, .. } => {
+                t.uses_uv()
+            }
+            _ => false,
+        }
+    }
+}
+
+/// One triangle in world space. Shading normals are optional (mesh `normals`), and so
+/// are texture coordinates (mesh `uvs`; a quad's own parametrisation).
 ///
 /// Winding (set by `validate`): the geometric normal is `(p[1] − p[0]) × (p[2] − p[0])`.
 /// For a quad it is `edge_u × edge_v`, for a box it points outwards, for a mesh it follows
@@ -135,6 +197,7 @@ pub enum Material {
 pub struct Triangle {
     pub p: [Vec3; 3],
     pub n: Option<[Vec3; 3]>,
+    pub uv: Option<[Vec2; 3]>,
 }
 
 /// A document object after its transform has been applied (world space).
