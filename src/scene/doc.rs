@@ -103,8 +103,8 @@ impl Default for DisplayDoc {
     }
 }
 
-/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, mirror,
-/// dielectric, emissive).
+/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, coated_diffuse,
+/// mirror, dielectric, emissive).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum MaterialDoc {
@@ -113,6 +113,8 @@ pub enum MaterialDoc {
     Conductor(ConductorDoc),
     #[serde(rename = "metallic_roughness")]
     MetallicRoughness(MetallicRoughnessDoc),
+    #[serde(rename = "coated_diffuse")]
+    CoatedDiffuse(CoatedDiffuseDoc),
     Mirror(MirrorDoc),
     Dielectric(DielectricDoc),
     Emissive(EmissiveDoc),
@@ -157,6 +159,27 @@ pub struct MetallicRoughnessDoc {
     pub roughness: f32,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub texture: Option<TextureDoc>,
+}
+
+/// pbrt-v4's `coateddiffuse` (our extension for imported scenes): a Lambertian base
+/// (exactly one of `reflectance` in [0, 1] and `texture`) under a dielectric coat of
+/// index `ior` > 0 (default 1.5) with GGX `roughness` in [0, 1] (default 0, alpha =
+/// roughness²).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoatedDiffuseDoc {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reflectance: Option<V3>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureDoc>,
+    #[serde(default)]
+    pub roughness: f32,
+    #[serde(default = "default_coat_ior")]
+    pub ior: f32,
+}
+
+fn default_coat_ior() -> f32 {
+    1.5
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -534,6 +557,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "glossy",
             "conductor",
             "metallic_roughness",
+            "coated_diffuse",
             "mirror",
             "dielectric",
             "emissive",
@@ -544,6 +568,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "glossy" => variant(rest).map(MaterialDoc::Glossy),
             "conductor" => variant(rest).map(MaterialDoc::Conductor),
             "metallic_roughness" => variant(rest).map(MaterialDoc::MetallicRoughness),
+            "coated_diffuse" => variant(rest).map(MaterialDoc::CoatedDiffuse),
             "mirror" => variant(rest).map(MaterialDoc::Mirror),
             "dielectric" => variant(rest).map(MaterialDoc::Dielectric),
             _ => variant(rest).map(MaterialDoc::Emissive),

@@ -160,6 +160,13 @@ pub enum Material {
         metallic: f32,
         roughness: f32,
     },
+    /// A Lambertian base of albedo `reflectance` under a dielectric coat of index `ior`
+    /// with GGX `roughness` (pbrt-v4 `coateddiffuse`; alpha = roughness²).
+    CoatedDiffuse {
+        reflectance: Texture,
+        roughness: f32,
+        ior: f32,
+    },
     Mirror {
         reflectance: Vec3,
     },
@@ -178,9 +185,9 @@ impl Material {
     #[must_use]
     pub fn uses_uv(&self) -> bool {
         match self {
-            Material::Diffuse { albedo: t } | Material::MetallicRoughness { base_color: t, .. } => {
-                t.uses_uv()
-            }
+            Material::Diffuse { albedo: t }
+            | Material::MetallicRoughness { base_color: t, .. }
+            | Material::CoatedDiffuse { reflectance: t, .. } => t.uses_uv(),
             _ => false,
         }
     }

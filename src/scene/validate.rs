@@ -822,6 +822,32 @@ fn check_materials(
                     roughness: m.roughness,
                 }
             }
+            MaterialDoc::CoatedDiffuse(c) => {
+                let reflectance = match (&c.reflectance, &c.texture) {
+                    (Some(a), None) => {
+                        Texture::Constant(cx.colour01(&format!("{p}.reflectance"), *a))
+                    }
+                    (None, Some(t)) => check_texture(cx, &format!("{p}.texture"), t),
+                    (Some(_), Some(_)) => {
+                        cx.err(&p, "give either reflectance or texture, not both");
+                        Texture::Constant(Vec3::ZERO)
+                    }
+                    (None, None) => {
+                        cx.err(
+                            &format!("{p}.reflectance"),
+                            "missing: a coated_diffuse material needs `reflectance` or `texture`",
+                        );
+                        Texture::Constant(Vec3::ZERO)
+                    }
+                };
+                cx.in_unit(&format!("{p}.roughness"), c.roughness);
+                cx.positive(&format!("{p}.ior"), c.ior);
+                Material::CoatedDiffuse {
+                    reflectance,
+                    roughness: c.roughness,
+                    ior: c.ior,
+                }
+            }
             MaterialDoc::Mirror(r) => Material::Mirror {
                 reflectance: cx.colour01(&format!("{p}.reflectance"), r.reflectance),
             },

@@ -212,6 +212,17 @@ impl PathTracer {
                 metallic: *metallic,
                 alpha: *alpha,
             },
+            Some(super::ResolvedMaterial::TexturedCoated {
+                reflectance,
+                eta,
+                alpha,
+                fdr_int,
+            }) => Bsdf::CoatedDiffuse {
+                albedo: tex(reflectance),
+                eta: *eta,
+                alpha: *alpha,
+                fdr_int: *fdr_int,
+            },
             None => Bsdf::Black,
         }
     }

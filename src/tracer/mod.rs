@@ -266,6 +266,14 @@ pub(crate) enum ResolvedMaterial {
         metallic: f32,
         alpha: f32,
     },
+    /// A coated diffuse surface with a textured base: [`Bsdf::CoatedDiffuse`]'s other
+    /// fields.
+    TexturedCoated {
+        reflectance: crate::scene::Texture,
+        eta: f32,
+        alpha: f32,
+        fdr_int: f32,
+    },
 }
 
 /// The path tracer over a prepared scene (BVH, emitter list, feature flags). Immutable
@@ -332,6 +340,28 @@ impl PathTracer {
                     metallic,
                     alpha: (roughness * roughness).max(material::MIN_ALPHA),
                 },
+                Material::CoatedDiffuse {
+                    reflectance,
+                    roughness,
+                    ior,
+                } => {
+                    let (eta, alpha) = (ior, (roughness * roughness).max(material::MIN_ALPHA));
+                    let fdr_int = material::internal_diffuse_reflectance(ior);
+                    match reflectance {
+                        Texture::Constant(albedo) => ResolvedMaterial::Fixed(Bsdf::CoatedDiffuse {
+                            albedo,
+                            eta,
+                            alpha,
+                            fdr_int,
+                        }),
+                        reflectance => ResolvedMaterial::TexturedCoated {
+                            reflectance,
+                            eta,
+                            alpha,
+                            fdr_int,
+                        },
+                    }
+                }
                 Material::Mirror { reflectance } => {
                     ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
                 }
@@ -363,6 +393,7 @@ impl PathTracer {
                     Material::Glossy { .. }
                         | Material::Conductor { .. }
                         | Material::MetallicRoughness { .. }
+                        | Material::CoatedDiffuse { .. }
                 )
             }),
             has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
@@ -527,7 +558,9 @@ impl PathTracer {
         let s = self.geo.surface(self.camera.origin, d, &hit);
         match self.materials.get(s.info.material as usize)? {
             ResolvedMaterial::Textured(t) => Some(texture::eval(t, s.p, s.uv, &self.images)),
-            ResolvedMaterial::Fixed(_) | ResolvedMaterial::TexturedMetalRough { .. } => None,
+            ResolvedMaterial::Fixed(_)
+            | ResolvedMaterial::TexturedMetalRough { .. }
+            | ResolvedMaterial::TexturedCoated { .. } => None,
         }
     }
 }

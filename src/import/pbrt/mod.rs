@@ -28,9 +28,9 @@ use self::params::{Params, Values};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc, EmissiveDoc,
-    EnvironmentLightDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc, PointLightDoc,
-    RenderDoc, SceneDoc, SphereDoc, TextureDoc, WrapDoc,
+    CameraDoc, CoatedDiffuseDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc,
+    EmissiveDoc, EnvironmentLightDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc,
+    PointLightDoc, RenderDoc, SceneDoc, SphereDoc, TextureDoc, WrapDoc,
 };
 
 /// Includes may nest this deep (a file including itself is refused here).
@@ -673,6 +673,32 @@ impl Importer<'_> {
                     eta: rgb(eta),
                     k: rgb(k),
                     roughness,
+                })
+            }
+            "coateddiffuse" => {
+                let eta = match p.get("eta") {
+                    Some(param) if matches!(param.values, Values::Strs(_)) => {
+                        self.warn(&param.pos, "named glass spectrum: rendered with η = 1.5");
+                        1.5
+                    }
+                    _ => p.float("eta", 1.5)?,
+                };
+                if !(eta > 0.0) {
+                    return Err(pos.error(format!("coateddiffuse eta must be > 0, got {eta}")));
+                }
+                if p.get("albedo").is_some() || p.get("g").is_some() {
+                    self.warn(pos, "coateddiffuse: the medium between coat and base (albedo, g, thickness) is not modelled: clear");
+                }
+                let roughness = self.roughness(p, pos)?;
+                let (reflectance, texture) = match self.reflectance(p, "reflectance", [0.5; 3])? {
+                    Reflectance::Rgb(r) => (Some(rgb(r.map(|c| c.min(1.0)))), None),
+                    Reflectance::Image(t) => (None, Some(TextureDoc::Image(t))),
+                };
+                MaterialDoc::CoatedDiffuse(CoatedDiffuseDoc {
+                    reflectance,
+                    texture,
+                    roughness,
+                    ior: eta as f32,
                 })
             }
             "dielectric" | "thindielectric" => {
