@@ -17,8 +17,9 @@ use glam::{Mat3, Mat4, Vec3};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, DirectionalLightDoc, EmissiveDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc,
-    MetallicRoughnessDoc, ObjectDoc, PointLightDoc, SceneDoc, TextureDoc, WrapDoc,
+    CameraDoc, DirectionalLightDoc, EmissiveDoc, FalloffDoc, ImageTextureDoc, LightDoc,
+    MaterialDoc, MeshDoc, MetallicRoughnessDoc, ObjectDoc, PointLightDoc, SceneDoc, SpotLightDoc,
+    TextureDoc, WrapDoc,
 };
 
 /// Node trees deeper than this are refused (glTF forbids cycles; this also bounds them).
@@ -326,14 +327,24 @@ impl Gltf<'_> {
                     irradiance: c.to_array(),
                 }));
             }
-            kind => {
-                if matches!(kind, gltf::khr_lights_punctual::Kind::Spot { .. }) {
-                    self.warnings.push(format!(
-                        "{}: /extensions/KHR_lights_punctual/lights/{}: spot light rendered as a point light (no cone)",
-                        self.name,
-                        light.index()
-                    ));
-                }
+            gltf::khr_lights_punctual::Kind::Spot {
+                inner_cone_angle,
+                outer_cone_angle,
+            } => {
+                // KHR_lights_punctual: angles from the axis (−z of the node), in radians,
+                // 0 ≤ inner < outer ≤ π/2, with the squared linear ramp in cos θ.
+                let outer = outer_cone_angle.clamp(0.0, std::f32::consts::FRAC_PI_2);
+                let inner = inner_cone_angle.clamp(0.0, outer);
+                self.lights.push(LightDoc::Spot(SpotLightDoc {
+                    position: pos.to_array(),
+                    direction: dir.to_array(),
+                    intensity: c.to_array(),
+                    outer_angle: outer.to_degrees(),
+                    inner_angle: inner.to_degrees(),
+                    falloff: FalloffDoc::SquaredLinear,
+                }));
+            }
+            gltf::khr_lights_punctual::Kind::Point => {
                 self.lights.push(LightDoc::Point(PointLightDoc {
                     position: pos.to_array(),
                     intensity: c.to_array(),

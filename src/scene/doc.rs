@@ -399,13 +399,44 @@ pub struct ObjDoc {
     pub transform: Option<TransformDoc>,
 }
 
-/// Explicit lights (`"type"`: point, directional, environment).
+/// Explicit lights (`"type"`: point, directional, environment, spot).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum LightDoc {
     Point(PointLightDoc),
     Directional(DirectionalLightDoc),
     Environment(EnvironmentLightDoc),
+    Spot(SpotLightDoc),
+}
+
+/// A spot light (our extension for imported scenes): a point light at `position`
+/// pointing along `direction`, full `intensity` within `inner_angle` of its axis, none
+/// beyond `outer_angle` (half-angles in degrees, 0 ≤ inner ≤ outer ≤ 180; inner
+/// default 0), and between them `falloff`: `smoothstep` (pbrt-v4, the default) or
+/// `squared_linear` (glTF), both over the cosine of the angle.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpotLightDoc {
+    pub position: V3,
+    pub direction: V3,
+    pub intensity: V3,
+    pub outer_angle: f32,
+    #[serde(default)]
+    pub inner_angle: f32,
+    #[serde(default = "default_falloff")]
+    pub falloff: FalloffDoc,
+}
+
+fn default_falloff() -> FalloffDoc {
+    FalloffDoc::Smoothstep
+}
+
+/// A spot light's `falloff`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FalloffDoc {
+    Smoothstep,
+    SquaredLinear,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -602,9 +633,10 @@ impl<'de> Deserialize<'de> for ObjectDoc {
 
 impl<'de> Deserialize<'de> for LightDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let (t, rest) = tagged(d, "light", &["point", "directional", "environment"])?;
+        let (t, rest) = tagged(d, "light", &["point", "directional", "environment", "spot"])?;
         match t.as_str() {
             "point" => variant(rest).map(LightDoc::Point),
+            "spot" => variant(rest).map(LightDoc::Spot),
             "directional" => variant(rest).map(LightDoc::Directional),
             _ => variant(rest).map(LightDoc::Environment),
         }

@@ -246,6 +246,47 @@ pub enum Light {
     Environment {
         radiance: Vec3,
     },
+    /// A point light limited to a cone: intensity `intensity` (W/sr) inside `cos_inner`
+    /// of the axis `direction` (unit, where the light points), falling to zero at
+    /// `cos_outer` as `falloff` says.
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Vec3,
+        cos_inner: f32,
+        cos_outer: f32,
+        falloff: SpotFalloff,
+    },
+}
+
+/// How a spot light's intensity falls from its inner to its outer cone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SpotFalloff {
+    /// pbrt-v4 `SpotLight::I`: smoothstep(cos θ) from cos_outer (0) to cos_inner (1).
+    Smoothstep,
+    /// glTF `KHR_lights_punctual`'s recommended attenuation: the square of the linear
+    /// ramp in cos θ from cos_outer (0) to cos_inner (1).
+    SquaredLinear,
+}
+
+impl SpotFalloff {
+    /// The fraction of the intensity sent at cos θ from the axis (1 inside the inner
+    /// cone, 0 outside the outer one).
+    #[must_use]
+    pub fn weight(self, cos_theta: f32, cos_inner: f32, cos_outer: f32) -> f32 {
+        if cos_theta >= cos_inner {
+            return 1.0;
+        }
+        if cos_theta <= cos_outer {
+            return 0.0;
+        }
+        // cos_outer < cos θ < cos_inner here, so the span is positive.
+        let t = ((cos_theta - cos_outer) / (cos_inner - cos_outer)).clamp(0.0, 1.0);
+        match self {
+            SpotFalloff::Smoothstep => t * t * (3.0 - 2.0 * t),
+            SpotFalloff::SquaredLinear => t * t,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -311,5 +352,36 @@ impl Scene {
                 Shape::Sphere { .. } => 0,
             })
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SpotFalloff;
+
+    #[test]
+    fn spot_falloff_at_the_cone_angles() {
+        // pbrt-v4's defaults: coneangle 30°, conedelta 5°: full intensity within 25°,
+        // none beyond 30°.
+        let (ci, co) = (25f32.to_radians().cos(), 30f32.to_radians().cos());
+        for f in [SpotFalloff::Smoothstep, SpotFalloff::SquaredLinear] {
+            assert_eq!(f.weight(1.0, ci, co), 1.0);
+            assert_eq!(f.weight(ci, ci, co), 1.0);
+            assert_eq!(f.weight(co, ci, co), 0.0);
+            assert_eq!(f.weight(31f32.to_radians().cos(), ci, co), 0.0);
+            assert_eq!(f.weight(-1.0, ci, co), 0.0);
+        }
+        // Half-way in cos θ: smoothstep 0.5, the squared ramp 0.25.
+        let mid = 0.5 * (ci + co);
+        assert!((SpotFalloff::Smoothstep.weight(mid, ci, co) - 0.5).abs() < 1e-6);
+        assert!((SpotFalloff::SquaredLinear.weight(mid, ci, co) - 0.25).abs() < 1e-6);
+        // At 27.5°: t = (cos 27.5° − cos 30°) / (cos 25° − cos 30°) = 0.5210;
+        // smoothstep 3t² − 2t³ = 0.5314, squared 0.2714.
+        let c = 27.5f32.to_radians().cos();
+        assert!((SpotFalloff::Smoothstep.weight(c, ci, co) - 0.5314).abs() < 2e-4);
+        assert!((SpotFalloff::SquaredLinear.weight(c, ci, co) - 0.2714).abs() < 2e-4);
+        // A hard-edged cone (inner = outer): all or nothing, never a division by zero.
+        assert_eq!(SpotFalloff::Smoothstep.weight(co + 1e-6, co, co), 1.0);
+        assert_eq!(SpotFalloff::Smoothstep.weight(co - 1e-6, co, co), 0.0);
     }
 }

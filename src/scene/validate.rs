@@ -8,16 +8,16 @@ use glam::{Vec2, Vec3};
 use serde_json::Value;
 
 use super::doc::{
-    join_path, split_marked, CameraDoc, DisplayDoc, ImageTextureDoc, LightDoc, MaterialDoc,
-    ObjectDoc, ProgressiveDoc, RenderDoc, ScaleDoc, SceneDoc, TextureDoc, TransformDoc, WrapDoc,
-    V3,
+    join_path, split_marked, CameraDoc, DisplayDoc, FalloffDoc, ImageTextureDoc, LightDoc,
+    MaterialDoc, ObjectDoc, ProgressiveDoc, RenderDoc, ScaleDoc, SceneDoc, TextureDoc,
+    TransformDoc, WrapDoc, V3,
 };
 use super::image::{ImageError, MAX_TEXTURE_PIXELS};
 use super::obj;
 use super::transform::Xform;
 use super::{
     Camera, Display, ImageMap, Light, Material, ProgressiveSettings, RenderSettings, Scene, Shape,
-    Texture, TextureImage, Triangle, Wrap,
+    SpotFalloff, Texture, TextureImage, Triangle, Wrap,
 };
 
 /// Where a document came from: decides whether `obj` paths may be read.
@@ -1325,6 +1325,37 @@ fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
         LightDoc::Environment(e) => Light::Environment {
             radiance: cx.nonneg3(&format!("{p}.radiance"), e.radiance),
         },
+        LightDoc::Spot(s) => {
+            let dp = format!("{p}.direction");
+            let dir = cx.vec3(&dp, s.direction);
+            let direction = dir.normalize_or_zero();
+            if dir.is_finite() && direction == Vec3::ZERO {
+                cx.err(&dp, "must be non-zero");
+            }
+            let (outer, inner) = (s.outer_angle, s.inner_angle);
+            let op = format!("{p}.outer_angle");
+            if cx.finite(&op, outer) && !(0.0..=180.0).contains(&outer) {
+                cx.err(&op, format!("must be in [0, 180] degrees, got {outer}"));
+            }
+            let ip = format!("{p}.inner_angle");
+            if cx.finite(&ip, inner) && !(0.0..=outer.max(0.0)).contains(&inner) {
+                cx.err(
+                    &ip,
+                    format!("must be in [0, outer_angle = {outer}] degrees, got {inner}"),
+                );
+            }
+            Light::Spot {
+                position: world_position(cx, &format!("{p}.position"), s.position),
+                direction,
+                intensity: cx.nonneg3(&format!("{p}.intensity"), s.intensity),
+                cos_inner: inner.to_radians().cos(),
+                cos_outer: outer.to_radians().cos(),
+                falloff: match s.falloff {
+                    FalloffDoc::Smoothstep => SpotFalloff::Smoothstep,
+                    FalloffDoc::SquaredLinear => SpotFalloff::SquaredLinear,
+                },
+            }
+        }
     }
 }
 

@@ -29,8 +29,8 @@ use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
     CameraDoc, CoatedDiffuseDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc,
-    EmissiveDoc, EnvironmentLightDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc,
-    PointLightDoc, RenderDoc, SceneDoc, SphereDoc, TextureDoc, WrapDoc,
+    EmissiveDoc, EnvironmentLightDoc, FalloffDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc,
+    ObjectDoc, PointLightDoc, RenderDoc, SceneDoc, SphereDoc, SpotLightDoc, TextureDoc, WrapDoc,
 };
 
 /// Includes may nest this deep (a file including itself is refused here).
@@ -861,6 +861,37 @@ impl Importer<'_> {
                 }));
                 self.light_frames.push((Some(at), None));
             }
+            "spot" => {
+                if p.get("power").is_some() {
+                    self.warn(pos, "light \"power\" ignored: the intensity I is used");
+                }
+                let i = self.spectrum(p, "I", [1.0; 3])?;
+                let from = DVec3::from(p.triple("from")?.unwrap_or([0.0; 3]));
+                let to = DVec3::from(p.triple("to")?.unwrap_or([0.0, 0.0, 1.0]));
+                let at = m.transform_point3(from);
+                let d = m
+                    .transform_vector3(to - from)
+                    .try_normalize()
+                    .ok_or_else(|| pos.error("spot light: from and to coincide"))?;
+                // pbrt-v4 SpotLight: full intensity within coneangle − conedelta of the
+                // axis, smoothstep in cos θ down to zero at coneangle.
+                let cone = p.float("coneangle", 30.0)?;
+                let delta = p.float("conedelta", 5.0)?;
+                if !(0.0..=180.0).contains(&cone) || !(delta >= 0.0) {
+                    return Err(pos.error(format!(
+                        "spot light: coneangle must be in [0, 180] and conedelta ≥ 0, got {cone} and {delta}"
+                    )));
+                }
+                self.lights.push(LightDoc::Spot(SpotLightDoc {
+                    position: at.as_vec3().to_array(),
+                    direction: d.as_vec3().to_array(),
+                    intensity: i.map(|c| (c * scale) as f32),
+                    outer_angle: cone as f32,
+                    inner_angle: (cone - delta).max(0.0) as f32,
+                    falloff: FalloffDoc::Smoothstep,
+                }));
+                self.light_frames.push((Some(at), Some(d)));
+            }
             "distant" => {
                 let l = self.spectrum(p, "L", [1.0; 3])?;
                 let from = DVec3::from(p.triple("from")?.unwrap_or([0.0; 3]));
@@ -890,7 +921,7 @@ impl Importer<'_> {
             }
             other => {
                 return Err(pos.error(format!(
-                    "light \"{other}\" is not supported (point, distant, infinite)"
+                    "light \"{other}\" is not supported (point, spot, distant, infinite)"
                 )))
             }
         }
@@ -1180,6 +1211,16 @@ impl Importer<'_> {
                             .transform_vector3(dir.unwrap_or(DVec3::Z))
                             .as_vec3()
                             .to_array()
+                    }
+                    LightDoc::Spot(sl) => {
+                        sl.position = m
+                            .transform_point3(at.unwrap_or_default())
+                            .as_vec3()
+                            .to_array();
+                        sl.direction = m
+                            .transform_vector3(dir.unwrap_or(DVec3::Z))
+                            .as_vec3()
+                            .to_array();
                     }
                     LightDoc::Environment(_) => {}
                 }
