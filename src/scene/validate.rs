@@ -1695,6 +1695,57 @@ mod tests {
     fn rule_errors_name_their_path() {
         let cases: Vec<(Value, &str, &str)> = vec![
             (
+                with(
+                    |v| v["materials"]["m"] = json!({"type": "diffuse", "texture": {"type": "image", "data": "textures/wood.png"}}),
+                ),
+                "materials.m.texture.data",
+                "data: URI",
+            ),
+            (
+                with(
+                    |v| v["materials"]["m"] = json!({"type": "diffuse", "texture": {"type": "image", "data": "data:image/png;base64,AAAA", "factor": [1, 2, 1]}}),
+                ),
+                "materials.m.texture.factor[1]",
+                "[0, 1]",
+            ),
+            (
+                with(|v| {
+                    v["materials"]["m"] =
+                        json!({"type": "coated_diffuse", "reflectance": [0.5, 0.5, 0.5], "ior": 0})
+                }),
+                "materials.m.ior",
+                "must be > 0",
+            ),
+            (
+                with(|v| v["materials"]["m"] = json!({"type": "coated_diffuse"})),
+                "materials.m.reflectance",
+                "missing",
+            ),
+            (
+                with(|v| {
+                    v["objects"][0] = json!({"type": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                        "indices": [[0, 1, 2]], "uvs": [[0, 0], [1, 0]], "material": "m"})
+                }),
+                "objects[0].uvs",
+                "one per position",
+            ),
+            (
+                with(|v| {
+                    v["lights"] = json!([{"type": "spot", "position": [0, 1, 0], "direction": [0, -1, 0],
+                        "intensity": [1, 1, 1], "outer_angle": 20, "inner_angle": 30}])
+                }),
+                "lights[0].inner_angle",
+                "outer_angle = 20",
+            ),
+            (
+                with(|v| {
+                    v["lights"] = json!([{"type": "spot", "position": [0, 1, 0], "direction": [0, 0, 0],
+                        "intensity": [1, 1, 1], "outer_angle": 200}])
+                }),
+                "lights[0].direction",
+                "non-zero",
+            ),
+            (
                 with(|v| v["version"] = json!(2)),
                 "version",
                 "must be 1, got 2",
