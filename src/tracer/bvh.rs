@@ -558,6 +558,20 @@ mod tests {
     }
 
     #[test]
+    fn sphere_uv_is_longitude_and_latitude() {
+        let at = |n: Vec3| sphere_uv(n.normalize());
+        assert_eq!(at(Vec3::X), Vec2::new(0.0, 0.5));
+        assert!((at(Vec3::NEG_Z) - Vec2::new(0.25, 0.5)).length() < 1e-6);
+        assert!((at(Vec3::NEG_X) - Vec2::new(0.5, 0.5)).length() < 1e-6);
+        assert!((at(Vec3::Z) - Vec2::new(0.75, 0.5)).length() < 1e-6);
+        assert_eq!(at(Vec3::Y).y, 0.0);
+        assert!((at(Vec3::NEG_Y).y - 1.0).abs() < 1e-6);
+        // Just short of a full turn stays below 1 (a texture wraps there).
+        let u = at(Vec3::new(1.0, 0.0, 1e-4)).x;
+        assert!(u > 0.99 && u < 1.0, "{u}");
+    }
+
+    #[test]
     fn tie_breaking_only_grows_a_box_and_by_a_hair() {
         let a = Aabb::new(Vec3A::new(1.0, 2.0, 3.0), Vec3A::new(2.0, 2.0, 5.0));
         for i in 0..1000 {
