@@ -279,8 +279,7 @@ fn gltf_base_colour_texture_renders_like_constant_squares_of_its_texels() {
     let constant = quadrant_means(&render(&json, 32));
     assert_close("glTF texture vs constant squares", textured, constant, 0.02);
     // And the picture is the texture's: each quadrant's dominant channel is its texel's.
-    for q in 0..3 {
-        let c = textured[q];
+    for (q, c) in textured.iter().enumerate().take(3) {
         let top = (0..3).max_by(|&a, &b| c[a].total_cmp(&c[b])).unwrap();
         assert_eq!(top, q, "quadrant {q}: {c:?}");
     }
