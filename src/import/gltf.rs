@@ -822,6 +822,41 @@ mod tests {
     }
 
     #[test]
+    fn spot_lights_keep_their_cones_and_gltf_falloff() {
+        // A spot at (0, 2, 0) turned to point down (−z rotated by −90° about x is −y).
+        let j = triangle_json(
+            3,
+            r#","extensionsUsed":["KHR_lights_punctual"],
+            "extensions":{"KHR_lights_punctual":{"lights":[{"type":"spot","color":[1,0.5,0.25],
+              "intensity":8,"spot":{"innerConeAngle":0.2,"outerConeAngle":0.6}}]}}"#,
+        )
+        .replace(
+            r#""scenes":[{"nodes":[0]}]"#,
+            r#""scenes":[{"nodes":[0,1]}]"#,
+        )
+        .replace(
+            r#""nodes":[{"mesh":0,"translation":[0,0,-3]}]"#,
+            r#""nodes":[{"mesh":0,"translation":[0,0,-3]},
+              {"translation":[0,2,0],"rotation":[-0.70710678,0,0,0.70710678],
+               "extensions":{"KHR_lights_punctual":{"light":0}}}]"#,
+        );
+        let im = import("t.gltf", j.as_bytes(), &none(), &limits()).unwrap();
+        let [LightDoc::Spot(s)] = &im.doc.lights[..] else {
+            panic!("{:?}", im.doc.lights)
+        };
+        assert_eq!(s.position, [0.0, 2.0, 0.0]);
+        assert!(
+            (Vec3::from(s.direction) - Vec3::NEG_Y).length() < 1e-5,
+            "{:?}",
+            s.direction
+        );
+        assert_eq!(s.intensity, [8.0, 4.0, 2.0]);
+        assert!((s.inner_angle - 0.2f32.to_degrees()).abs() < 1e-4);
+        assert!((s.outer_angle - 0.6f32.to_degrees()).abs() < 1e-4);
+        assert_eq!(s.falloff, FalloffDoc::SquaredLinear);
+    }
+
+    #[test]
     fn a_triangle_imports_from_gltf_and_glb() {
         let j = triangle_json(3, "");
         for bytes in [j.as_bytes().to_vec(), glb(&j)] {
