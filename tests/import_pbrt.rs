@@ -9,6 +9,7 @@ use std::process::Command;
 
 use glimpse::cancel::CancelToken;
 use glimpse::import::load_path;
+use glimpse::raster::LinearImage;
 use glimpse::scene::Limits;
 use glimpse::tracer::{render_reference, PathTracer};
 
@@ -114,12 +115,64 @@ fn display_mean(
     s.map(|v| v / f64::from(tw * (r1 - r0)))
 }
 
+/// `img` (w×h) box-averaged down to `tw`×`th`, as a linear image.
+fn downsampled(img: &[[f32; 3]], (w, h): (u32, u32), (tw, th): (u32, u32)) -> LinearImage {
+    let (fx, fy) = (w / tw, h / th);
+    let mut out = Vec::with_capacity((tw * th) as usize);
+    for ty in 0..th {
+        for tx in 0..tw {
+            let mut b = glam::Vec3::ZERO;
+            for y in ty * fy..(ty + 1) * fy {
+                for x in tx * fx..(tx + 1) * fx {
+                    b += glam::Vec3::from(img[(y * w + x) as usize]);
+                }
+            }
+            out.push(b / (fx * fy) as f32);
+        }
+    }
+    LinearImage::from_vec(tw, th, out).unwrap()
+}
+
+/// FLIP (nv-flip, at exposure 1 and 28 pixels per degree, as `glimpse bench` judges) of
+/// our render against the Tungsten reference downsampled to its size: the whole image
+/// and its top, middle and bottom thirds. Printed, not bounded: the pbrt conversions
+/// differ from the scenes Tungsten rendered (README), and FLIP also sees our noise.
+fn flip_against_tungsten(
+    folder: &str,
+    ours: &[[f32; 3]],
+    (w, h): (u32, u32),
+    refr: (&[[f32; 3]], u32, u32),
+) {
+    let a = downsampled(ours, (w, h), (w, h));
+    let b = downsampled(refr.0, (refr.1, refr.2), (w, h));
+    let (score, map) = glimpse::bench::flip::flip_with_map(&b, &a, 1.0, 28.0);
+    let third = |k: u32| {
+        let rows = (k * h / 3)..((k + 1) * h / 3);
+        let n = f64::from(w * (rows.end - rows.start));
+        rows.flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| f64::from(map.pixels()[(y * w + x) as usize]))
+            .sum::<f64>()
+            / n
+    };
+    eprintln!(
+        "{folder}: FLIP against Tungsten {:.4} (top third {:.4}, middle {:.4}, bottom {:.4}), 99th percentile {:.4}",
+        score.mean,
+        third(0),
+        third(1),
+        third(2),
+        score.p99
+    );
+}
+
 /// The render's display-range mean against the Tungsten reference's over `rows`; the
-/// worst relative channel difference.
+/// worst relative channel difference. Prints FLIP beside it.
 fn against_tungsten(folder: &str, w: u32, h: u32, spp: u32, rows: std::ops::Range<f64>) -> f64 {
     let dir = public(folder);
     let (ours, ow, oh) = render_cli(&dir.join("scene-v4.pbrt"), w, h, spp);
     let (refr, rw, rh) = read_exr(&dir.join("TungstenRender.exr"));
+    if rows == (0.0..1.0) {
+        flip_against_tungsten(folder, &ours, (ow, oh), (&refr, rw, rh));
+    }
     let a = display_mean(&ours, (ow, oh), (w, h), rows.clone());
     let b = display_mean(&refr, (rw, rh), (w, h), rows.clone());
     let worst = (0..3)

@@ -44,10 +44,30 @@ const EXTREMES: [f64; 16] = [
     4294967296.0,
 ];
 
-/// Every type the scene format has (scene-format.md "Fields"), so that fields no bundled
-/// scene uses (glass, mirror, point and directional lights, mesh normals, per-axis scale,
-/// rotations, t1) are mutated too.
+/// A 2×2 PNG as a `data:` URI (an image texture's `data`).
+fn png_uri() -> String {
+    use base64::Engine as _;
+    let img = image::RgbImage::from_raw(
+        2,
+        2,
+        vec![200, 40, 40, 40, 200, 40, 40, 40, 200, 230, 230, 230],
+    )
+    .unwrap();
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(png)
+    )
+}
+
+/// Every type the scene format has (scene-format.md "Fields", and the import extensions:
+/// image textures, mesh uvs, coated diffuse, metallic-roughness, spot lights), so that
+/// fields no bundled scene uses (glass, mirror, point and directional lights, mesh
+/// normals, per-axis scale, rotations, t1) are mutated too.
 fn every_type() -> Value {
+    let png = png_uri();
     json!({
         "version": 1,
         "name": "every-type",
@@ -64,7 +84,14 @@ fn every_type() -> Value {
             "glossy": { "type": "glossy", "albedo": [0.8, 0.8, 0.8], "roughness": 0.3 },
             "mirror": { "type": "mirror", "reflectance": [0.95, 0.95, 0.95] },
             "glass": { "type": "dielectric", "ior": 1.5, "tint": [1, 0.9, 0.9] },
-            "lamp": { "type": "emissive", "radiance": [8, 8, 8], "two_sided": true }
+            "lamp": { "type": "emissive", "radiance": [8, 8, 8], "two_sided": true },
+            "picture": { "type": "diffuse",
+                         "texture": { "type": "image", "data": png, "encoding": "srgb", "wrap": "mirror",
+                                      "uv_scale": [2, 2], "uv_offset": [0.1, 0], "factor": [1, 0.9, 0.9] } },
+            "coat": { "type": "coated_diffuse", "roughness": 0.2, "ior": 1.5,
+                      "texture": { "type": "image", "data": png, "encoding": "linear", "wrap": "clamp" } },
+            "plastic": { "type": "metallic_roughness", "base_color": [0.5, 0.5, 0.5], "metallic": 0.3,
+                         "roughness": 0.4, "texture": { "type": "image", "data": png } }
         },
         "objects": [
             { "type": "sphere", "center": [-1, 0.5, 0], "radius": 0.5, "material": "glass" },
@@ -79,12 +106,19 @@ fn every_type() -> Value {
                              "scale": [1, 1.5, 1] } },
             { "type": "mesh", "positions": [[-3, 0, -3], [3, 0, -3], [0, 3, -3]],
               "normals": [[0, 0, 1], [0, 0, 1], [0, 0.1, 1]], "indices": [[0, 1, 2]],
-              "material": "noise" }
+              "material": "noise" },
+            { "type": "mesh", "positions": [[-3, 0, -2], [3, 0, -2], [0, 3, -2]],
+              "uvs": [[0, 1], [1, 1], [0.5, 0]], "indices": [[0, 1, 2]], "material": "picture" },
+            { "type": "sphere", "center": [0, 2, 1], "radius": 0.3, "material": "coat" },
+            { "type": "quad", "corner": [2, 0, -1], "edge_u": [0, 1, 0], "edge_v": [0, 0, 1],
+              "material": "plastic" }
         ],
         "lights": [
             { "type": "point", "position": [2, 3, 2], "intensity": [20, 20, 20] },
             { "type": "directional", "direction": [0.3, -1, -0.2], "irradiance": [1, 1, 1] },
-            { "type": "environment", "radiance": [0.1, 0.1, 0.12] }
+            { "type": "environment", "radiance": [0.1, 0.1, 0.12] },
+            { "type": "spot", "position": [0, 2.8, 0], "direction": [0, -1, 0.1], "intensity": [10, 10, 10],
+              "outer_angle": 40, "inner_angle": 25, "falloff": "squared_linear" }
         ],
         "render": { "mode": "progressive", "samples_per_pixel": 2, "max_bounces": 5, "seed": 3 },
         "progressive": { "t0": 1.0, "t1": 4.0, "initial_rate": 0.05, "homogeneity": 0.8,

@@ -252,7 +252,9 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
     Ok(study)
 }
 
-/// The `*.json` files of the scene folder, sorted.
+/// The `*.json` files of the scene folder, sorted, then the imported scenes of its
+/// `imported/` folder (each `imported/NAME/scene-v4.pbrt`, sorted): public scenes whose
+/// pixels cost far more than ours.
 fn scene_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("cannot read scene folder {}", dir.display()))?
@@ -262,8 +264,22 @@ fn scene_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         .collect();
     files.sort();
     anyhow::ensure!(!files.is_empty(), "no *.json scenes in {}", dir.display());
+    let mut imported: Vec<PathBuf> = std::fs::read_dir(dir.join("imported"))
+        .map(|rd| {
+            rd.filter_map(Result::ok)
+                .map(|e| e.path().join("scene-v4.pbrt"))
+                .filter(|p| p.is_file())
+                .collect()
+        })
+        .unwrap_or_default();
+    imported.sort();
+    files.extend(imported);
     Ok(files)
 }
+
+/// Longest side of an imported scene in the study (its file asks for 1024²: its truth,
+/// at 16× the samples, would take hours).
+const IMPORTED_MAX_SIDE: u32 = 256;
 
 /// Generates the corpus into `out_dir/corpus/` and judges every scene against its truth.
 fn run_corpus(cfg: &BenchConfig, c: &CorpusConfig) -> anyhow::Result<Vec<CorpusResult>> {
@@ -351,8 +367,14 @@ pub struct Loaded {
 /// the reference itself noisy, and a noisy reference is a different study (every method is
 /// then judged mostly on noise).
 fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
-    let json =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let imported = crate::import::import_path(path, &Limits::command_line())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let json = match &imported {
+        // An import is studied as the document it produces (the truth's cache key).
+        Some(i) => serde_json::to_string(&i.doc)?,
+        None => std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read {}", path.display()))?,
+    };
     let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let mut scene = parse_scene(&json, &SceneOrigin::File { dir }, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
@@ -361,6 +383,13 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
+    }
+    if imported.is_some() {
+        // Named by its folder (every public scene's file is scene-v4.pbrt).
+        if let Some(folder) = path.parent().and_then(Path::file_name) {
+            scene.name = folder.to_string_lossy().into_owned();
+        }
+        shrink(&mut scene, IMPORTED_MAX_SIDE);
     }
     if cfg.spp_factor != 1 {
         let limits = Limits::command_line();
@@ -387,17 +416,22 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
             })?;
     }
     if cfg.quick {
-        let long = scene.width.max(scene.height);
-        if long > 128 {
-            let s = 128.0 / long as f32;
-            scene.width = ((scene.width as f32 * s).round() as u32).max(1);
-            scene.height = ((scene.height as f32 * s).round() as u32).max(1);
-        }
+        shrink(&mut scene, 128);
     }
     Ok(Loaded {
         scene,
         document: json,
     })
+}
+
+/// Scales the image down to at most `side` pixels on its long side.
+fn shrink(scene: &mut Scene, side: u32) {
+    let long = scene.width.max(scene.height);
+    if long > side {
+        let s = side as f32 / long as f32;
+        scene.width = ((scene.width as f32 * s).round() as u32).max(1);
+        scene.height = ((scene.height as f32 * s).round() as u32).max(1);
+    }
 }
 
 /// The seed of the independent reference: any other seed will do; this one is fixed so

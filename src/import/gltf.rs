@@ -1,6 +1,6 @@
 //! The glTF 2.0 importer (`.gltf` with embedded or sibling buffers, `.glb`): the node
-//! tree with its transforms, triangle meshes (indices, normals), `pbrMetallicRoughness`
-//! materials, emission with `KHR_materials_emissive_strength`, `KHR_lights_punctual`
+//! tree with its transforms, triangle meshes (indices, normals, texture coordinates),
+//! `pbrMetallicRoughness` materials with their base-colour texture, emission with `KHR_materials_emissive_strength`, `KHR_lights_punctual`
 //! and perspective cameras. Errors name the JSON pointer of what is wrong.
 //!
 //! The `gltf` crate parses and validates the JSON only (its path import would read
@@ -17,8 +17,9 @@ use glam::{Mat3, Mat4, Vec3};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, DirectionalLightDoc, EmissiveDoc, LightDoc, MaterialDoc, MeshDoc,
-    MetallicRoughnessDoc, ObjectDoc, PointLightDoc, SceneDoc,
+    CameraDoc, DirectionalLightDoc, EmissiveDoc, FalloffDoc, ImageTextureDoc, LightDoc,
+    MaterialDoc, MeshDoc, MetallicRoughnessDoc, ObjectDoc, PointLightDoc, SceneDoc, SpotLightDoc,
+    TextureDoc, WrapDoc,
 };
 
 /// Node trees deeper than this are refused (glTF forbids cycles; this also bounds them).
@@ -326,14 +327,24 @@ impl Gltf<'_> {
                     irradiance: c.to_array(),
                 }));
             }
-            kind => {
-                if matches!(kind, gltf::khr_lights_punctual::Kind::Spot { .. }) {
-                    self.warnings.push(format!(
-                        "{}: /extensions/KHR_lights_punctual/lights/{}: spot light rendered as a point light (no cone)",
-                        self.name,
-                        light.index()
-                    ));
-                }
+            gltf::khr_lights_punctual::Kind::Spot {
+                inner_cone_angle,
+                outer_cone_angle,
+            } => {
+                // KHR_lights_punctual: angles from the axis (−z of the node), in radians,
+                // 0 ≤ inner < outer ≤ π/2, with the squared linear ramp in cos θ.
+                let outer = outer_cone_angle.clamp(0.0, std::f32::consts::FRAC_PI_2);
+                let inner = inner_cone_angle.clamp(0.0, outer);
+                self.lights.push(LightDoc::Spot(SpotLightDoc {
+                    position: pos.to_array(),
+                    direction: dir.to_array(),
+                    intensity: c.to_array(),
+                    outer_angle: outer.to_degrees(),
+                    inner_angle: inner.to_degrees(),
+                    falloff: FalloffDoc::SquaredLinear,
+                }));
+            }
+            gltf::khr_lights_punctual::Kind::Point => {
                 self.lights.push(LightDoc::Point(PointLightDoc {
                     position: pos.to_array(),
                     intensity: c.to_array(),
@@ -402,6 +413,36 @@ impl Gltf<'_> {
                     t.swap(1, 2);
                 }
             }
+            // Texture coordinates only where the material maps an image with them.
+            let uv_set = prim
+                .material()
+                .pbr_metallic_roughness()
+                .base_color_texture()
+                .filter(|_| prim.material().emissive_factor() == [0.0; 3])
+                .map(|t| t.tex_coord());
+            let uvs = match uv_set
+                .and_then(|set| prim.get(&gltf::Semantic::TexCoords(set)).map(|a| (set, a)))
+            {
+                Some((set, a)) => {
+                    let uvs = self.vec2s(&a, &format!("{p}/attributes/TEXCOORD_{set}"))?;
+                    if uvs.len() != n {
+                        return Err(self.at(
+                            &format!("{p}/attributes/TEXCOORD_{set}"),
+                            "count differs from POSITION's",
+                        ));
+                    }
+                    Some(uvs)
+                }
+                None => {
+                    if let Some(set) = uv_set {
+                        self.warnings.push(format!(
+                            "{}: {p}/attributes: no TEXCOORD_{set} for the material's base colour texture: its corner texel everywhere",
+                            self.name
+                        ));
+                    }
+                    None
+                }
+            };
             let material = self.material(prim.material())?;
             let normals = normals.map(|ns| {
                 ns.iter()
@@ -420,6 +461,7 @@ impl Gltf<'_> {
                 normals: normals
                     .filter(|ns| ns.iter().all(|n| n.length_squared() > 0.0))
                     .map(|ns| ns.iter().map(|n| n.to_array()).collect()),
+                uvs,
                 material,
                 transform: None,
             }));
@@ -486,6 +528,42 @@ impl Gltf<'_> {
         Ok(out)
     }
 
+    /// Texture coordinates: VEC2 of FLOAT, or of normalised UNSIGNED_BYTE / UNSIGNED_SHORT
+    /// (glTF 2.0 §3.7.2.1).
+    fn vec2s(&self, a: &gltf::Accessor, p: &str) -> Result<Vec<[f32; 2]>, ImportError> {
+        use gltf::accessor::DataType;
+        let ty = a.data_type();
+        let ok_type =
+            ty == DataType::F32 || (a.normalized() && matches!(ty, DataType::U8 | DataType::U16));
+        if a.dimensions() != gltf::accessor::Dimensions::Vec2 || !ok_type {
+            return Err(self.at(
+                p,
+                "must be VEC2 of FLOAT or of normalized UNSIGNED_BYTE/UNSIGNED_SHORT",
+            ));
+        }
+        let (buf, start, stride, count) = self.span(a)?;
+        let out: Vec<[f32; 2]> = (0..count)
+            .map(|i| {
+                let o = start + i * stride;
+                [0, 1].map(|k| match ty {
+                    DataType::U8 => f32::from(buf[o + k]) / 255.0,
+                    DataType::U16 => {
+                        f32::from(u16::from_le_bytes([buf[o + 2 * k], buf[o + 2 * k + 1]]))
+                            / 65535.0
+                    }
+                    _ => {
+                        let b = &buf[o + 4 * k..o + 4 * k + 4];
+                        f32::from_le_bytes([b[0], b[1], b[2], b[3]])
+                    }
+                })
+            })
+            .collect();
+        if let Some(i) = out.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(self.at(p, format!("element {i} is not finite")));
+        }
+        Ok(out)
+    }
+
     fn indices(&self, a: &gltf::Accessor, p: &str) -> Result<Vec<u32>, ImportError> {
         use gltf::accessor::DataType;
         if a.dimensions() != gltf::accessor::Dimensions::Scalar {
@@ -535,57 +613,77 @@ impl Gltf<'_> {
         } else {
             let pbr = m.pbr_metallic_roughness();
             let f = pbr.base_color_factor();
-            let mut base = Vec3::new(f[0], f[1], f[2]);
-            if let Some(t) = pbr.base_color_texture() {
-                base *= Vec3::from(self.texture_mean(
-                    &t.texture(),
-                    &format!("{p}/pbrMetallicRoughness/baseColorTexture"),
-                )?);
-            }
+            let base = Vec3::new(f[0], f[1], f[2]).clamp(Vec3::ZERO, Vec3::ONE);
+            let texture = match pbr.base_color_texture() {
+                Some(t) => {
+                    let mut doc = self.image_texture(
+                        &t.texture(),
+                        &format!("{p}/pbrMetallicRoughness/baseColorTexture"),
+                    )?;
+                    // glTF: base colour = baseColorFactor × the texture's (sRGB) colour.
+                    doc.factor = base.to_array();
+                    Some(TextureDoc::Image(doc))
+                }
+                None => None,
+            };
             if pbr.metallic_roughness_texture().is_some() {
                 self.warnings.push(format!("{}: {p}/pbrMetallicRoughness/metallicRoughnessTexture: not modelled, the factors are used", self.name));
             }
             MaterialDoc::MetallicRoughness(MetallicRoughnessDoc {
-                base_color: base.clamp(Vec3::ZERO, Vec3::ONE).to_array(),
+                base_color: base.to_array(),
                 metallic: pbr.metallic_factor().clamp(0.0, 1.0),
                 roughness: pbr.roughness_factor().clamp(0.0, 1.0),
+                texture,
             })
         };
         self.materials.insert(name.clone(), doc);
         Ok(name)
     }
 
-    /// The mean linear colour of a base-colour texture (glTF base colour is sRGB).
-    fn texture_mean(&mut self, t: &gltf::Texture, p: &str) -> Result<[f32; 3], ImportError> {
+    /// A base-colour texture (glTF base colour is always sRGB) with its sampler's wrap.
+    fn image_texture(
+        &mut self,
+        t: &gltf::Texture,
+        p: &str,
+    ) -> Result<ImageTextureDoc, ImportError> {
         let img = t.source();
-        let (name, bytes) = match img.source() {
+        let ip = format!("/images/{}", img.index());
+        let (name, mime, bytes) = match img.source() {
             gltf::image::Source::View { view, mime_type } => {
                 let buf = &self.buffers[view.buffer().index()];
                 let end = view.offset().saturating_add(view.length());
-                let bytes = buf
-                    .get(view.offset()..end)
-                    .ok_or_else(|| self.at(p, "the image's bufferView lies outside its buffer"))?;
-                let ext = if mime_type.contains("png") {
-                    "i.png"
-                } else {
-                    "i.jpg"
-                };
-                (ext.to_string(), bytes.to_vec())
+                let bytes = buf.get(view.offset()..end).ok_or_else(|| {
+                    self.at(&ip, "the image's bufferView lies outside its buffer")
+                })?;
+                (ip.clone(), Some(mime_type), bytes.to_vec())
             }
-            gltf::image::Source::Uri { uri, .. } => (uri.to_string(), self.uri(p, uri)?),
+            gltf::image::Source::Uri { uri, mime_type } => {
+                (percent_decode(uri), mime_type, self.uri(&ip, uri)?)
+            }
         };
-        let mean = super::texture::mean_colour(
+        let mut doc = super::texture::image_texture(
             &name,
+            mime,
             &bytes,
             Encoding::Srgb,
             self.limits.max_texture_pixels,
         )
-        .map_err(|e| self.at(p, e))?;
-        self.warnings.push(format!(
-            "{}: {p}: image texture rendered as its mean colour",
-            self.name
-        ));
-        Ok(mean)
+        .map_err(|e| self.at(&ip, e))?;
+        use gltf::texture::WrappingMode;
+        let sampler = t.sampler();
+        let wrap = |w: WrappingMode| match w {
+            WrappingMode::ClampToEdge => WrapDoc::Clamp,
+            WrappingMode::MirroredRepeat => WrapDoc::Mirror,
+            WrappingMode::Repeat => WrapDoc::Repeat,
+        };
+        doc.wrap = wrap(sampler.wrap_s());
+        if wrap(sampler.wrap_t()) != doc.wrap {
+            self.warnings.push(format!(
+                "{}: {p}: the sampler wraps s and t differently: both as wrapS",
+                self.name
+            ));
+        }
+        Ok(doc)
     }
 
     fn finish(self) -> Result<Imported, ImportError> {
@@ -721,6 +819,41 @@ mod tests {
         // No camera and no light: both supplied by the caller (fov_y 0 marks it).
         assert_eq!(im.doc.camera.fov_y, 0.0);
         assert!(im.doc.lights.is_empty());
+    }
+
+    #[test]
+    fn spot_lights_keep_their_cones_and_gltf_falloff() {
+        // A spot at (0, 2, 0) turned to point down (−z rotated by −90° about x is −y).
+        let j = triangle_json(
+            3,
+            r#","extensionsUsed":["KHR_lights_punctual"],
+            "extensions":{"KHR_lights_punctual":{"lights":[{"type":"spot","color":[1,0.5,0.25],
+              "intensity":8,"spot":{"innerConeAngle":0.2,"outerConeAngle":0.6}}]}}"#,
+        )
+        .replace(
+            r#""scenes":[{"nodes":[0]}]"#,
+            r#""scenes":[{"nodes":[0,1]}]"#,
+        )
+        .replace(
+            r#""nodes":[{"mesh":0,"translation":[0,0,-3]}]"#,
+            r#""nodes":[{"mesh":0,"translation":[0,0,-3]},
+              {"translation":[0,2,0],"rotation":[-0.70710678,0,0,0.70710678],
+               "extensions":{"KHR_lights_punctual":{"light":0}}}]"#,
+        );
+        let im = import("t.gltf", j.as_bytes(), &none(), &limits()).unwrap();
+        let [LightDoc::Spot(s)] = &im.doc.lights[..] else {
+            panic!("{:?}", im.doc.lights)
+        };
+        assert_eq!(s.position, [0.0, 2.0, 0.0]);
+        assert!(
+            (Vec3::from(s.direction) - Vec3::NEG_Y).length() < 1e-5,
+            "{:?}",
+            s.direction
+        );
+        assert_eq!(s.intensity, [8.0, 4.0, 2.0]);
+        assert!((s.inner_angle - 0.2f32.to_degrees()).abs() < 1e-4);
+        assert!((s.outer_angle - 0.6f32.to_degrees()).abs() < 1e-4);
+        assert_eq!(s.falloff, FalloffDoc::SquaredLinear);
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //! - `illum 4, 6, 7` or a dissolve below 1 → `dielectric` (ior `Ni`, default 1.5);
 //! - `Ks` brighter than `Kd` → `glossy` (albedo Ks, roughness from the Phong exponent `Ns`
 //!   by the usual Beckmann match α = √(2 / (Ns + 2)), roughness = √α);
-//! - otherwise `diffuse` (albedo Kd; a weaker specular part is dropped with a warning).
+//! - otherwise `diffuse` (albedo Kd, or the `map_Kd` image times Kd, with the mesh's `vt`
+//!   texture coordinates; a weaker specular part is dropped with a warning).
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -15,7 +16,7 @@ use std::io::BufReader;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
     CameraDoc, DielectricDoc, DiffuseDoc, EmissiveDoc, GlossyDoc, MaterialDoc, MeshDoc, MirrorDoc,
-    ObjectDoc, SceneDoc,
+    ObjectDoc, SceneDoc, TextureDoc,
 };
 
 pub fn import(
@@ -61,7 +62,11 @@ pub fn import(
         } else {
             m.name.clone()
         };
-        materials.insert(key.clone(), material(name, m, &mut warnings));
+        let mut doc = material(name, m, &mut warnings);
+        if let Some(map) = &m.diffuse_texture {
+            diffuse_map(name, &mut doc, m, map, files, limits, &mut warnings)?;
+        }
+        materials.insert(key.clone(), doc);
         names.push(key);
     }
     let mut objects = Vec::new();
@@ -103,8 +108,18 @@ pub fn import(
                 ns.iter()
                     .all(|n| n.iter().any(|c| *c != 0.0) && n.iter().all(|c| c.is_finite()))
             });
+        // OBJ's `vt` has v growing upwards; the document's image t grows downwards.
+        let uvs = (mesh.texcoords.len() / 2 == positions.len() && !mesh.texcoords.is_empty())
+            .then(|| {
+                mesh.texcoords
+                    .chunks_exact(2)
+                    .map(|c| [c[0], 1.0 - c[1]])
+                    .collect::<Vec<_>>()
+            })
+            .filter(|uv| uv.iter().flatten().all(|c| c.is_finite()));
         objects.push(ObjectDoc::Mesh(MeshDoc {
             positions,
+            uvs,
             indices: mesh
                 .indices
                 .chunks_exact(3)
@@ -127,6 +142,49 @@ pub fn import(
         ..super::document(name, 512, 512, camera)
     };
     Ok(Imported { doc, warnings })
+}
+
+/// A diffuse material's `map_Kd` (an sRGB image, multiplied by Kd as the MTL format says),
+/// read through the confined source; a missing file keeps Kd with a warning (as pbrt
+/// textures do), a map on any other material is dropped with one.
+fn diffuse_map(
+    file: &str,
+    doc: &mut MaterialDoc,
+    m: &tobj::Material,
+    map: &str,
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+    warnings: &mut Vec<String>,
+) -> Result<(), ImportError> {
+    let MaterialDoc::Diffuse(d) = doc else {
+        warnings.push(format!(
+            "{file}: material \"{}\": map_Kd is modelled on diffuse materials only: dropped",
+            m.name
+        ));
+        return Ok(());
+    };
+    let bytes = match files.read(map, limits.max_file_bytes) {
+        Ok(b) => b,
+        Err(e) => {
+            warnings.push(format!(
+                "{file}: material \"{}\": map_Kd {e}: rendered with Kd",
+                m.name
+            ));
+            return Ok(());
+        }
+    };
+    let mut t = super::texture::image_texture(
+        map,
+        None,
+        &bytes,
+        super::texture::Encoding::Srgb,
+        limits.max_texture_pixels,
+    )
+    .map_err(|e| ImportError::invalid(format!("{file}: map_Kd \"{map}\""), e))?;
+    t.factor = d.albedo.unwrap_or([1.0; 3]);
+    d.albedo = None;
+    d.texture = Some(TextureDoc::Image(t));
+    Ok(())
 }
 
 fn clamp01(v: [f32; 3]) -> [f32; 3] {

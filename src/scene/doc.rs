@@ -103,8 +103,8 @@ impl Default for DisplayDoc {
     }
 }
 
-/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, mirror,
-/// dielectric, emissive).
+/// Materials (`"type"`: diffuse, glossy, conductor, metallic_roughness, coated_diffuse,
+/// mirror, dielectric, emissive).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum MaterialDoc {
@@ -113,6 +113,8 @@ pub enum MaterialDoc {
     Conductor(ConductorDoc),
     #[serde(rename = "metallic_roughness")]
     MetallicRoughness(MetallicRoughnessDoc),
+    #[serde(rename = "coated_diffuse")]
+    CoatedDiffuse(CoatedDiffuseDoc),
     Mirror(MirrorDoc),
     Dielectric(DielectricDoc),
     Emissive(EmissiveDoc),
@@ -146,13 +148,38 @@ pub struct ConductorDoc {
 }
 
 /// glTF 2.0's metallic-roughness material (our extension for imported scenes):
-/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²).
+/// `base_color` in [0, 1], `metallic` and `roughness` in [0, 1] (alpha = roughness²);
+/// an optional `texture` replaces `base_color` (glTF's `baseColorFactor` goes into an
+/// image texture's `factor`).
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MetallicRoughnessDoc {
     pub base_color: V3,
     pub metallic: f32,
     pub roughness: f32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureDoc>,
+}
+
+/// pbrt-v4's `coateddiffuse` (our extension for imported scenes): a Lambertian base
+/// (exactly one of `reflectance` in [0, 1] and `texture`) under a dielectric coat of
+/// index `ior` > 0 (default 1.5) with GGX `roughness` in [0, 1] (default 0, alpha =
+/// roughness²).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoatedDiffuseDoc {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reflectance: Option<V3>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub texture: Option<TextureDoc>,
+    #[serde(default)]
+    pub roughness: f32,
+    #[serde(default = "default_coat_ior")]
+    pub ior: f32,
+}
+
+fn default_coat_ior() -> f32 {
+    1.5
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -179,12 +206,58 @@ pub struct EmissiveDoc {
     pub two_sided: bool,
 }
 
-/// Procedural textures (`"type"`: checker, noise); both have the same fields.
+/// Textures (`"type"`: checker, noise: procedural, with the same fields; image: our
+/// extension, looked up at the surface's `uvs`).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum TextureDoc {
     Checker(TextureFields),
     Noise(TextureFields),
+    Image(ImageTextureDoc),
+}
+
+/// An image texture (our extension for imported scenes): the file inline as a `data:`
+/// URI (PNG, JPEG or TGA), how its values encode light (default `srgb`), what lies
+/// outside it (`wrap`, default `repeat`), the mapping `uv × uv_scale + uv_offset`
+/// (defaults `[1, 1]`, `[0, 0]`; (0, 0) is the image's top-left corner) and a `factor`
+/// in [0, 1] that multiplies every texel (default `[1, 1, 1]`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageTextureDoc {
+    pub data: String,
+    #[serde(default = "default_encoding")]
+    pub encoding: super::image::Encoding,
+    #[serde(default = "default_wrap")]
+    pub wrap: WrapDoc,
+    #[serde(default = "default_uv_scale")]
+    pub uv_scale: [f32; 2],
+    #[serde(default)]
+    pub uv_offset: [f32; 2],
+    #[serde(default = "default_factor")]
+    pub factor: V3,
+}
+
+fn default_encoding() -> super::image::Encoding {
+    super::image::Encoding::Srgb
+}
+fn default_wrap() -> WrapDoc {
+    WrapDoc::Repeat
+}
+fn default_uv_scale() -> [f32; 2] {
+    [1.0, 1.0]
+}
+fn default_factor() -> V3 {
+    [1.0; 3]
+}
+
+/// An image texture's `wrap`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WrapDoc {
+    Repeat,
+    Clamp,
+    Mirror,
+    Black,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -308,6 +381,10 @@ pub struct MeshDoc {
     pub indices: Vec<[u64; 3]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub normals: Option<Vec<V3>>,
+    /// Texture coordinates per position (our extension): `[u, v]`, (0, 0) the top-left
+    /// corner of an image texture.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uvs: Option<Vec<[f32; 2]>>,
     pub material: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transform: Option<TransformDoc>,
@@ -322,13 +399,44 @@ pub struct ObjDoc {
     pub transform: Option<TransformDoc>,
 }
 
-/// Explicit lights (`"type"`: point, directional, environment).
+/// Explicit lights (`"type"`: point, directional, environment, spot).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum LightDoc {
     Point(PointLightDoc),
     Directional(DirectionalLightDoc),
     Environment(EnvironmentLightDoc),
+    Spot(SpotLightDoc),
+}
+
+/// A spot light (our extension for imported scenes): a point light at `position`
+/// pointing along `direction`, full `intensity` within `inner_angle` of its axis, none
+/// beyond `outer_angle` (half-angles in degrees, 0 ≤ inner ≤ outer ≤ 180; inner
+/// default 0), and between them `falloff`: `smoothstep` (pbrt-v4, the default) or
+/// `squared_linear` (glTF), both over the cosine of the angle.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpotLightDoc {
+    pub position: V3,
+    pub direction: V3,
+    pub intensity: V3,
+    pub outer_angle: f32,
+    #[serde(default)]
+    pub inner_angle: f32,
+    #[serde(default = "default_falloff")]
+    pub falloff: FalloffDoc,
+}
+
+fn default_falloff() -> FalloffDoc {
+    FalloffDoc::Smoothstep
+}
+
+/// A spot light's `falloff`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FalloffDoc {
+    Smoothstep,
+    SquaredLinear,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -480,6 +588,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "glossy",
             "conductor",
             "metallic_roughness",
+            "coated_diffuse",
             "mirror",
             "dielectric",
             "emissive",
@@ -490,6 +599,7 @@ impl<'de> Deserialize<'de> for MaterialDoc {
             "glossy" => variant(rest).map(MaterialDoc::Glossy),
             "conductor" => variant(rest).map(MaterialDoc::Conductor),
             "metallic_roughness" => variant(rest).map(MaterialDoc::MetallicRoughness),
+            "coated_diffuse" => variant(rest).map(MaterialDoc::CoatedDiffuse),
             "mirror" => variant(rest).map(MaterialDoc::Mirror),
             "dielectric" => variant(rest).map(MaterialDoc::Dielectric),
             _ => variant(rest).map(MaterialDoc::Emissive),
@@ -499,9 +609,10 @@ impl<'de> Deserialize<'de> for MaterialDoc {
 
 impl<'de> Deserialize<'de> for TextureDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let (t, rest) = tagged(d, "texture", &["checker", "noise"])?;
+        let (t, rest) = tagged(d, "texture", &["checker", "noise", "image"])?;
         match t.as_str() {
             "checker" => variant(rest).map(TextureDoc::Checker),
+            "image" => variant(rest).map(TextureDoc::Image),
             _ => variant(rest).map(TextureDoc::Noise),
         }
     }
@@ -522,9 +633,10 @@ impl<'de> Deserialize<'de> for ObjectDoc {
 
 impl<'de> Deserialize<'de> for LightDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let (t, rest) = tagged(d, "light", &["point", "directional", "environment"])?;
+        let (t, rest) = tagged(d, "light", &["point", "directional", "environment", "spot"])?;
         match t.as_str() {
             "point" => variant(rest).map(LightDoc::Point),
+            "spot" => variant(rest).map(LightDoc::Spot),
             "directional" => variant(rest).map(LightDoc::Directional),
             _ => variant(rest).map(LightDoc::Environment),
         }

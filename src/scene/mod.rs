@@ -6,6 +6,7 @@
 pub mod doc;
 pub mod duplicates;
 pub mod examples;
+pub mod image;
 pub mod obj;
 pub mod transform;
 pub mod validate;
@@ -16,7 +17,8 @@ pub use validate::{
     MAX_COORDINATE,
 };
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
+use std::sync::Arc;
 
 /// Index of a material in [`Scene::materials`].
 pub type MaterialId = u32;
@@ -39,6 +41,9 @@ pub struct Scene {
     /// One entry per document object, in document order (index = [`ObjectId`]).
     pub shapes: Vec<Shape>,
     pub lights: Vec<Light>,
+    /// Decoded image textures, addressed by [`ImageMap::image`] (shared, not copied, by
+    /// every tracer built from this scene).
+    pub images: Vec<Arc<TextureImage>>,
     pub render: RenderSettings,
     pub progressive: ProgressiveSettings,
     /// Soft problems (ignored degenerate triangles, ...), with their JSON paths.
@@ -75,7 +80,7 @@ impl Default for Display {
     }
 }
 
-/// A surface's reflectance, constant or procedural.
+/// A surface's reflectance, constant, procedural or an image.
 #[derive(Clone, Copy, Debug)]
 pub enum Texture {
     Constant(Vec3),
@@ -91,6 +96,49 @@ pub enum Texture {
         a: Vec3,
         b: Vec3,
     },
+    /// An image looked up at the surface's texture coordinates.
+    Image(ImageMap),
+}
+
+impl Texture {
+    /// Whether looking it up needs the surface's texture coordinates.
+    #[must_use]
+    pub fn uses_uv(&self) -> bool {
+        matches!(self, Texture::Image(_))
+    }
+}
+
+/// How an image is mapped: texel (s, t) = uv × `scale` + `offset`, in units of the whole
+/// image, (0, 0) its top-left corner and t growing downwards (glTF's convention).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageMap {
+    /// Index into [`Scene::images`].
+    pub image: u32,
+    /// Multiplies every texel (glTF `baseColorFactor`, pbrt `scale`).
+    pub factor: Vec3,
+    pub wrap: Wrap,
+    pub scale: Vec2,
+    pub offset: Vec2,
+}
+
+/// What a lookup outside [0, 1) of the image returns (glTF samplers, pbrt `wrap`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wrap {
+    Repeat,
+    Clamp,
+    /// Mirrored repeat: every other copy flipped.
+    Mirror,
+    /// Black outside the image.
+    Black,
+}
+
+/// A decoded image: linear RGB texels, row 0 at the top of the picture.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TextureImage {
+    pub width: u32,
+    pub height: u32,
+    /// `width × height` texels, row-major.
+    pub texels: Vec<Vec3>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -110,9 +158,16 @@ pub enum Material {
     },
     /// glTF 2.0 metallic-roughness (glTF spec Appendix B).
     MetallicRoughness {
-        base_color: Vec3,
+        base_color: Texture,
         metallic: f32,
         roughness: f32,
+    },
+    /// A Lambertian base of albedo `reflectance` under a dielectric coat of index `ior`
+    /// with GGX `roughness` (pbrt-v4 `coateddiffuse`; alpha = roughness²).
+    CoatedDiffuse {
+        reflectance: Texture,
+        roughness: f32,
+        ior: f32,
     },
     Mirror {
         reflectance: Vec3,
@@ -127,7 +182,21 @@ pub enum Material {
     },
 }
 
-/// One triangle in world space. Shading normals are optional (mesh `normals`).
+impl Material {
+    /// Whether shading it needs the surface's texture coordinates (an image texture).
+    #[must_use]
+    pub fn uses_uv(&self) -> bool {
+        match self {
+            Material::Diffuse { albedo: t }
+            | Material::MetallicRoughness { base_color: t, .. }
+            | Material::CoatedDiffuse { reflectance: t, .. } => t.uses_uv(),
+            _ => false,
+        }
+    }
+}
+
+/// One triangle in world space. Shading normals are optional (mesh `normals`), and so
+/// are texture coordinates (mesh `uvs`; a quad's own parametrisation).
 ///
 /// Winding (set by `validate`): the geometric normal is `(p[1] − p[0]) × (p[2] − p[0])`.
 /// For a quad it is `edge_u × edge_v`, for a box it points outwards, for a mesh it follows
@@ -137,6 +206,7 @@ pub enum Material {
 pub struct Triangle {
     pub p: [Vec3; 3],
     pub n: Option<[Vec3; 3]>,
+    pub uv: Option<[Vec2; 3]>,
 }
 
 /// A document object after its transform has been applied (world space).
@@ -178,6 +248,47 @@ pub enum Light {
     Environment {
         radiance: Vec3,
     },
+    /// A point light limited to a cone: intensity `intensity` (W/sr) inside `cos_inner`
+    /// of the axis `direction` (unit, where the light points), falling to zero at
+    /// `cos_outer` as `falloff` says.
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Vec3,
+        cos_inner: f32,
+        cos_outer: f32,
+        falloff: SpotFalloff,
+    },
+}
+
+/// How a spot light's intensity falls from its inner to its outer cone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SpotFalloff {
+    /// pbrt-v4 `SpotLight::I`: smoothstep(cos θ) from cos_outer (0) to cos_inner (1).
+    Smoothstep,
+    /// glTF `KHR_lights_punctual`'s recommended attenuation: the square of the linear
+    /// ramp in cos θ from cos_outer (0) to cos_inner (1).
+    SquaredLinear,
+}
+
+impl SpotFalloff {
+    /// The fraction of the intensity sent at cos θ from the axis (1 inside the inner
+    /// cone, 0 outside the outer one).
+    #[must_use]
+    pub fn weight(self, cos_theta: f32, cos_inner: f32, cos_outer: f32) -> f32 {
+        if cos_theta >= cos_inner {
+            return 1.0;
+        }
+        if cos_theta <= cos_outer {
+            return 0.0;
+        }
+        // cos_outer < cos θ < cos_inner here, so the span is positive.
+        let t = ((cos_theta - cos_outer) / (cos_inner - cos_outer)).clamp(0.0, 1.0);
+        match self {
+            SpotFalloff::Smoothstep => t * t * (3.0 - 2.0 * t),
+            SpotFalloff::SquaredLinear => t * t,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -243,5 +354,36 @@ impl Scene {
                 Shape::Sphere { .. } => 0,
             })
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SpotFalloff;
+
+    #[test]
+    fn spot_falloff_at_the_cone_angles() {
+        // pbrt-v4's defaults: coneangle 30°, conedelta 5°: full intensity within 25°,
+        // none beyond 30°.
+        let (ci, co) = (25f32.to_radians().cos(), 30f32.to_radians().cos());
+        for f in [SpotFalloff::Smoothstep, SpotFalloff::SquaredLinear] {
+            assert_eq!(f.weight(1.0, ci, co), 1.0);
+            assert_eq!(f.weight(ci, ci, co), 1.0);
+            assert_eq!(f.weight(co, ci, co), 0.0);
+            assert_eq!(f.weight(31f32.to_radians().cos(), ci, co), 0.0);
+            assert_eq!(f.weight(-1.0, ci, co), 0.0);
+        }
+        // Half-way in cos θ: smoothstep 0.5, the squared ramp 0.25.
+        let mid = 0.5 * (ci + co);
+        assert!((SpotFalloff::Smoothstep.weight(mid, ci, co) - 0.5).abs() < 1e-6);
+        assert!((SpotFalloff::SquaredLinear.weight(mid, ci, co) - 0.25).abs() < 1e-6);
+        // At 27.5°: t = (cos 27.5° − cos 30°) / (cos 25° − cos 30°) = 0.5210;
+        // smoothstep 3t² − 2t³ = 0.5314, squared 0.2714.
+        let c = 27.5f32.to_radians().cos();
+        assert!((SpotFalloff::Smoothstep.weight(c, ci, co) - 0.5314).abs() < 2e-4);
+        assert!((SpotFalloff::SquaredLinear.weight(c, ci, co) - 0.2714).abs() < 2e-4);
+        // A hard-edged cone (inner = outer): all or nothing, never a division by zero.
+        assert_eq!(SpotFalloff::Smoothstep.weight(co + 1e-6, co, co), 1.0);
+        assert_eq!(SpotFalloff::Smoothstep.weight(co - 1e-6, co, co), 0.0);
     }
 }

@@ -1,20 +1,23 @@
 //! Validation of a [`super::doc`] document into a [`super::Scene`]: collects every problem
 //! with its JSON path. Owned by issue #2's scene work.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use serde_json::Value;
 
 use super::doc::{
-    join_path, split_marked, CameraDoc, DisplayDoc, LightDoc, MaterialDoc, ObjectDoc,
-    ProgressiveDoc, RenderDoc, ScaleDoc, SceneDoc, TextureDoc, TransformDoc, V3,
+    join_path, split_marked, CameraDoc, DisplayDoc, FalloffDoc, ImageTextureDoc, LightDoc,
+    MaterialDoc, ObjectDoc, ProgressiveDoc, RenderDoc, ScaleDoc, SceneDoc, TextureDoc,
+    TransformDoc, WrapDoc, V3,
 };
+use super::image::{ImageError, MAX_TEXTURE_PIXELS};
 use super::obj;
 use super::transform::Xform;
 use super::{
-    Camera, Display, Light, Material, ProgressiveSettings, RenderSettings, Scene, Shape, Texture,
-    Triangle,
+    Camera, Display, ImageMap, Light, Material, ProgressiveSettings, RenderSettings, Scene, Shape,
+    SpotFalloff, Texture, TextureImage, Triangle, Wrap,
 };
 
 /// Where a document came from: decides whether `obj` paths may be read.
@@ -350,6 +353,11 @@ struct Ctx {
     /// The farthest world-space coordinate beyond ±[`MAX_COORDINATE`] of the object being
     /// checked (value, axis), if any: reported once per object by [`build`].
     far: Option<(f32, usize)>,
+    /// Image textures decoded so far, each once: a document that names the same data
+    /// (and encoding) twice gets one image.
+    images: Vec<Arc<TextureImage>>,
+    image_index: HashMap<(u64, super::image::Encoding), u32>,
+    texels: u64,
 }
 
 fn push_capped(list: &mut Vec<Problem>, unlisted: &mut usize, path: &str, message: String) {
@@ -642,6 +650,7 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
         material_names,
         shapes,
         lights,
+        images: cx.images,
         render,
         progressive,
         warnings: cx.warnings,
@@ -803,13 +812,43 @@ fn check_materials(
                 }
             }
             MaterialDoc::MetallicRoughness(m) => {
-                let base_color = cx.colour01(&format!("{p}.base_color"), m.base_color);
+                let base = cx.colour01(&format!("{p}.base_color"), m.base_color);
+                let base_color = match &m.texture {
+                    Some(t) => check_texture(cx, &format!("{p}.texture"), t),
+                    None => Texture::Constant(base),
+                };
                 cx.in_unit(&format!("{p}.metallic"), m.metallic);
                 cx.in_unit(&format!("{p}.roughness"), m.roughness);
                 Material::MetallicRoughness {
                     base_color,
                     metallic: m.metallic,
                     roughness: m.roughness,
+                }
+            }
+            MaterialDoc::CoatedDiffuse(c) => {
+                let reflectance = match (&c.reflectance, &c.texture) {
+                    (Some(a), None) => {
+                        Texture::Constant(cx.colour01(&format!("{p}.reflectance"), *a))
+                    }
+                    (None, Some(t)) => check_texture(cx, &format!("{p}.texture"), t),
+                    (Some(_), Some(_)) => {
+                        cx.err(&p, "give either reflectance or texture, not both");
+                        Texture::Constant(Vec3::ZERO)
+                    }
+                    (None, None) => {
+                        cx.err(
+                            &format!("{p}.reflectance"),
+                            "missing: a coated_diffuse material needs `reflectance` or `texture`",
+                        );
+                        Texture::Constant(Vec3::ZERO)
+                    }
+                };
+                cx.in_unit(&format!("{p}.roughness"), c.roughness);
+                cx.positive(&format!("{p}.ior"), c.ior);
+                Material::CoatedDiffuse {
+                    reflectance,
+                    roughness: c.roughness,
+                    ior: c.ior,
                 }
             }
             MaterialDoc::Mirror(r) => Material::Mirror {
@@ -835,6 +874,7 @@ fn check_texture(cx: &mut Ctx, p: &str, t: &TextureDoc) -> Texture {
     let (f, checker) = match t {
         TextureDoc::Checker(f) => (f, true),
         TextureDoc::Noise(f) => (f, false),
+        TextureDoc::Image(i) => return check_image_texture(cx, p, i),
     };
     cx.positive(&format!("{p}.scale"), f.scale);
     let a = cx.colour01(&format!("{p}.a"), f.a);
@@ -852,6 +892,60 @@ fn check_texture(cx: &mut Ctx, p: &str, t: &TextureDoc) -> Texture {
             b,
         }
     }
+}
+
+/// An image texture: its mapping checked, its image decoded (once per distinct data and
+/// encoding) within the document's texel limit.
+fn check_image_texture(cx: &mut Ctx, p: &str, t: &ImageTextureDoc) -> Texture {
+    let factor = cx.colour01(&format!("{p}.factor"), t.factor);
+    for (name, v) in [("uv_scale", t.uv_scale), ("uv_offset", t.uv_offset)] {
+        for (i, x) in v.iter().enumerate() {
+            cx.finite(&format!("{p}.{name}[{i}]"), *x);
+        }
+    }
+    let key = {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        t.data.hash(&mut h);
+        (h.finish(), t.encoding)
+    };
+    let image = match cx.image_index.get(&key) {
+        Some(&i) => i,
+        // No image is decoded for a document already too large.
+        None if !cx.too_large.is_empty() => 0,
+        None => {
+            let budget = MAX_TEXTURE_PIXELS.saturating_sub(cx.texels);
+            match super::image::decode(&t.data, t.encoding, budget) {
+                Ok(img) => {
+                    cx.texels += u64::from(img.width) * u64::from(img.height);
+                    let i = cx.images.len() as u32;
+                    cx.images.push(Arc::new(img));
+                    cx.image_index.insert(key, i);
+                    i
+                }
+                Err(ImageError::TooLarge(m)) => {
+                    cx.limit(&format!("{p}.data"), m);
+                    0
+                }
+                Err(ImageError::Invalid(m)) => {
+                    cx.err(&format!("{p}.data"), m);
+                    0
+                }
+            }
+        }
+    };
+    Texture::Image(ImageMap {
+        image,
+        factor,
+        wrap: match t.wrap {
+            WrapDoc::Repeat => Wrap::Repeat,
+            WrapDoc::Clamp => Wrap::Clamp,
+            WrapDoc::Mirror => Wrap::Mirror,
+            WrapDoc::Black => Wrap::Black,
+        },
+        scale: Vec2::from(t.uv_scale),
+        offset: Vec2::from(t.uv_offset),
+    })
 }
 
 /// Checks a transform; `None` if it is unusable (the object is then not built).
@@ -902,11 +996,15 @@ fn push_triangle(
     x: &Xform,
     mut p: [Vec3; 3],
     mut n: Option<[Vec3; 3]>,
+    mut uv: Option<[Vec2; 3]>,
 ) {
     if x.mirrors {
         p.swap(1, 2);
         if let Some(n) = n.as_mut() {
             n.swap(1, 2);
+        }
+        if let Some(uv) = uv.as_mut() {
+            uv.swap(1, 2);
         }
     }
     // A vertex out of range refuses the whole object (reported once by `build`), before the
@@ -931,7 +1029,7 @@ fn push_triangle(
         );
         return;
     }
-    out.push(Triangle { p, n });
+    out.push(Triangle { p, n, uv });
 }
 
 /// The two triangles of a quad: (c, c+u, c+u+v) and (c, c+u+v, c+v). Both have geometric
@@ -939,6 +1037,13 @@ fn push_triangle(
 fn quad_corners(c: Vec3, u: Vec3, v: Vec3) -> [[Vec3; 3]; 2] {
     [[c, c + u, c + u + v], [c, c + u + v, c + v]]
 }
+
+/// A quad's texture coordinates at [`quad_corners`]: (s, t) of `corner + s·edge_u +
+/// t·edge_v`, so an image texture spans the quad once.
+const QUAD_UVS: [[Vec2; 3]; 2] = [
+    [Vec2::ZERO, Vec2::X, Vec2::ONE],
+    [Vec2::ZERO, Vec2::ONE, Vec2::Y],
+];
 
 fn check_object(
     cx: &mut Ctx,
@@ -1011,8 +1116,8 @@ fn check_object(
             }
             let x = x?;
             let mut tris = Vec::with_capacity(2);
-            for t in quad_corners(c, u, v) {
-                push_triangle(cx, &mut tris, &p, &x, t.map(|q| x.point(q)), None);
+            for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
+                push_triangle(cx, &mut tris, &p, &x, t.map(|q| x.point(q)), None, Some(uv));
             }
             Some(Shape::Triangles {
                 triangles: tris,
@@ -1051,8 +1156,8 @@ fn check_object(
             ];
             let mut tris = Vec::with_capacity(12);
             for (c, u, v) in faces {
-                for t in quad_corners(c, u, v) {
-                    push_triangle(cx, &mut tris, &p, &x, t.map(|q| x.point(q)), None);
+                for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
+                    push_triangle(cx, &mut tris, &p, &x, t.map(|q| x.point(q)), None, Some(uv));
                 }
             }
             Some(Shape::Triangles {
@@ -1081,6 +1186,24 @@ fn check_object(
                         let np = format!("{p}.normals[{i}]");
                         if cx.vec3(&np, *n).length_squared() == 0.0 {
                             cx.err(&np, "must be non-zero");
+                        }
+                    }
+                }
+            }
+            if let Some(uvs) = &m.uvs {
+                if uvs.len() != m.positions.len() {
+                    cx.err(
+                        &format!("{p}.uvs"),
+                        format!(
+                            "has {} entries; expected one per position ({})",
+                            uvs.len(),
+                            m.positions.len()
+                        ),
+                    );
+                } else {
+                    for (i, uv) in uvs.iter().enumerate() {
+                        for (j, c) in uv.iter().enumerate() {
+                            cx.finite(&format!("{p}.uvs[{i}][{j}]"), *c);
                         }
                     }
                 }
@@ -1120,6 +1243,7 @@ fn check_object(
                     &x,
                     ix.map(|v| world[v]),
                     normals.as_ref().map(|ns| ix.map(|v| ns[v])),
+                    m.uvs.as_ref().map(|uvs| ix.map(|v| Vec2::from(uvs[v]))),
                 );
             }
             Some(Shape::Triangles {
@@ -1172,7 +1296,7 @@ fn check_object(
                     .as_ref()
                     .map(|ns| ix.map(|v| ns[v]))
                     .filter(|n| n.iter().all(|v| v.length_squared() > 0.0));
-                push_triangle(cx, &mut tris, &pp, &x, ix.map(|v| world[v]), n);
+                push_triangle(cx, &mut tris, &pp, &x, ix.map(|v| world[v]), n, None);
             }
             Some(Shape::Triangles {
                 triangles: tris,
@@ -1204,6 +1328,37 @@ fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
         LightDoc::Environment(e) => Light::Environment {
             radiance: cx.nonneg3(&format!("{p}.radiance"), e.radiance),
         },
+        LightDoc::Spot(s) => {
+            let dp = format!("{p}.direction");
+            let dir = cx.vec3(&dp, s.direction);
+            let direction = dir.normalize_or_zero();
+            if dir.is_finite() && direction == Vec3::ZERO {
+                cx.err(&dp, "must be non-zero");
+            }
+            let (outer, inner) = (s.outer_angle, s.inner_angle);
+            let op = format!("{p}.outer_angle");
+            if cx.finite(&op, outer) && !(0.0..=180.0).contains(&outer) {
+                cx.err(&op, format!("must be in [0, 180] degrees, got {outer}"));
+            }
+            let ip = format!("{p}.inner_angle");
+            if cx.finite(&ip, inner) && !(0.0..=outer.max(0.0)).contains(&inner) {
+                cx.err(
+                    &ip,
+                    format!("must be in [0, outer_angle = {outer}] degrees, got {inner}"),
+                );
+            }
+            Light::Spot {
+                position: world_position(cx, &format!("{p}.position"), s.position),
+                direction,
+                intensity: cx.nonneg3(&format!("{p}.intensity"), s.intensity),
+                cos_inner: inner.to_radians().cos(),
+                cos_outer: outer.to_radians().cos(),
+                falloff: match s.falloff {
+                    FalloffDoc::Smoothstep => SpotFalloff::Smoothstep,
+                    FalloffDoc::SquaredLinear => SpotFalloff::SquaredLinear,
+                },
+            }
+        }
     }
 }
 
@@ -1542,6 +1697,57 @@ mod tests {
     #[test]
     fn rule_errors_name_their_path() {
         let cases: Vec<(Value, &str, &str)> = vec![
+            (
+                with(
+                    |v| v["materials"]["m"] = json!({"type": "diffuse", "texture": {"type": "image", "data": "textures/wood.png"}}),
+                ),
+                "materials.m.texture.data",
+                "data: URI",
+            ),
+            (
+                with(
+                    |v| v["materials"]["m"] = json!({"type": "diffuse", "texture": {"type": "image", "data": "data:image/png;base64,AAAA", "factor": [1, 2, 1]}}),
+                ),
+                "materials.m.texture.factor[1]",
+                "[0, 1]",
+            ),
+            (
+                with(|v| {
+                    v["materials"]["m"] =
+                        json!({"type": "coated_diffuse", "reflectance": [0.5, 0.5, 0.5], "ior": 0})
+                }),
+                "materials.m.ior",
+                "must be > 0",
+            ),
+            (
+                with(|v| v["materials"]["m"] = json!({"type": "coated_diffuse"})),
+                "materials.m.reflectance",
+                "missing",
+            ),
+            (
+                with(|v| {
+                    v["objects"][0] = json!({"type": "mesh", "positions": [[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                        "indices": [[0, 1, 2]], "uvs": [[0, 0], [1, 0]], "material": "m"})
+                }),
+                "objects[0].uvs",
+                "one per position",
+            ),
+            (
+                with(|v| {
+                    v["lights"] = json!([{"type": "spot", "position": [0, 1, 0], "direction": [0, -1, 0],
+                        "intensity": [1, 1, 1], "outer_angle": 20, "inner_angle": 30}])
+                }),
+                "lights[0].inner_angle",
+                "outer_angle = 20",
+            ),
+            (
+                with(|v| {
+                    v["lights"] = json!([{"type": "spot", "position": [0, 1, 0], "direction": [0, 0, 0],
+                        "intensity": [1, 1, 1], "outer_angle": 200}])
+                }),
+                "lights[0].direction",
+                "non-zero",
+            ),
             (
                 with(|v| v["version"] = json!(2)),
                 "version",

@@ -157,7 +157,7 @@ fn faces_nothing(triangles: &[Triangle], own: usize, bounds: &[Aabb]) -> bool {
 
 /// An upper bound of the linear radiance (largest channel) any pixel can show before
 /// exposure: emitters and the environment seen directly, white Lambertian surfaces facing
-/// a point light at its nearest object or a directional light.
+/// a point or spot light at its nearest object or a directional light.
 fn brightest_radiance(scene: &Scene, bounds: &[Aabb]) -> f32 {
     let mut best = 0.0f32;
     for m in &scene.materials {
@@ -167,9 +167,15 @@ fn brightest_radiance(scene: &Scene, bounds: &[Aabb]) -> f32 {
     }
     for l in &scene.lights {
         let b = match l {
+            // A spot is a point light whose intensity is at most `intensity`.
             Light::Point {
                 position,
                 intensity,
+            }
+            | Light::Spot {
+                position,
+                intensity,
+                ..
             } => {
                 let d = bounds
                     .iter()

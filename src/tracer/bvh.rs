@@ -4,7 +4,7 @@
 //! [`Geometry::surface`] (STYLE.md: "keep obvhs behind `tracer::bvh`").
 
 use crate::scene::{MaterialId, ObjectId, Scene, Shape};
-use glam::{Vec3, Vec3A};
+use glam::{Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray as BvhRay, RayHit};
@@ -38,6 +38,9 @@ pub struct PrimInfo {
     pub emitter: u32,
     /// Index into [`Geometry::normals`] (three per triangle), or [`NONE`].
     pub normals: u32,
+    /// Index into [`Geometry::uvs`] (three per triangle; any other value than [`NONE`] on
+    /// a sphere), or [`NONE`] where the material needs no texture coordinates.
+    pub uvs: u32,
 }
 
 /// The closest hit of a ray.
@@ -57,6 +60,8 @@ pub struct Surface {
     pub ng: Vec3,
     /// Shading normal on the same side as `ng`.
     pub ns: Vec3,
+    /// Texture coordinates (zero where the material needs none).
+    pub uv: Vec2,
     pub info: PrimInfo,
 }
 
@@ -65,6 +70,9 @@ pub struct Geometry {
     pub prims: Vec<Prim>,
     pub info: Vec<PrimInfo>,
     pub normals: Vec<Vec3>,
+    /// Texture coordinates, three per triangle, kept only for image-textured materials:
+    /// a scene without image textures stores none.
+    pub uvs: Vec<Vec2>,
     /// Bounding sphere of the whole scene (centre, radius): directional and environment
     /// light power, and where "infinitely far" starts.
     pub bounds_center: Vec3,
@@ -79,8 +87,13 @@ impl Geometry {
         let mut prims = Vec::new();
         let mut info: Vec<PrimInfo> = Vec::new();
         let mut normals = Vec::new();
+        let mut uvs = Vec::new();
         for (obj, shape) in scene.shapes.iter().enumerate() {
             let object = obj as ObjectId;
+            let needs_uv = scene
+                .materials
+                .get(shape.material() as usize)
+                .is_some_and(crate::scene::Material::uses_uv);
             match shape {
                 Shape::Sphere {
                     center,
@@ -96,6 +109,7 @@ impl Geometry {
                         material: *material,
                         emitter: NONE,
                         normals: NONE,
+                        uvs: if needs_uv { 0 } else { NONE },
                     });
                 }
                 Shape::Triangles {
@@ -120,6 +134,15 @@ impl Geometry {
                             }
                             _ => NONE,
                         };
+                        let uidx = if needs_uv {
+                            let i = uvs.len() as u32;
+                            // pbrt's parametrisation of a triangle without its own: (0, 0),
+                            // (1, 0), (1, 1) at its corners.
+                            uvs.extend(t.uv.unwrap_or([Vec2::ZERO, Vec2::X, Vec2::ONE]));
+                            i
+                        } else {
+                            NONE
+                        };
                         prims.push(Prim::Tri {
                             v0: t.p[0].into(),
                             e1: e1.into(),
@@ -130,6 +153,7 @@ impl Geometry {
                             material: *material,
                             emitter: NONE,
                             normals: nidx,
+                            uvs: uidx,
                         });
                     }
                 }
@@ -170,6 +194,7 @@ impl Geometry {
             prims,
             info,
             normals,
+            uvs,
             bounds_center,
             bounds_radius,
         }
@@ -248,7 +273,19 @@ impl Geometry {
                         s
                     }
                 };
-                Surface { p, ng, ns, info }
+                let uv = if info.uvs == NONE {
+                    Vec2::ZERO
+                } else {
+                    let t = &self.uvs[info.uvs as usize..info.uvs as usize + 3];
+                    t[0] * (1.0 - hit.u - hit.v) + t[1] * hit.u + t[2] * hit.v
+                };
+                Surface {
+                    p,
+                    ng,
+                    ns,
+                    uv,
+                    info,
+                }
             }
             Prim::Sphere { center, radius } => {
                 let c = Vec3::from(center);
@@ -259,6 +296,11 @@ impl Geometry {
                     p: c + n * radius,
                     ng: n,
                     ns: n,
+                    uv: if info.uvs == NONE {
+                        Vec2::ZERO
+                    } else {
+                        sphere_uv(n)
+                    },
                     info,
                 }
             }
@@ -271,6 +313,18 @@ impl Geometry {
         self.intersect(o, d, f32::INFINITY, NONE)
             .map(|h| self.info[h.prim as usize].object)
     }
+}
+
+/// Texture coordinates on a sphere at unit normal `n`: longitude u ∈ [0, 1) around +y
+/// (0 towards +x, growing towards −z: counter-clockwise seen from above), v = 0 at the
+/// top pole and 1 at the bottom, so an equirectangular image wraps it upright.
+#[must_use]
+pub fn sphere_uv(n: Vec3) -> Vec2 {
+    let u = (-n.z).atan2(n.x) * std::f32::consts::FRAC_1_PI * 0.5;
+    Vec2::new(
+        if u < 0.0 { u + 1.0 } else { u },
+        n.y.clamp(-1.0, 1.0).acos() * std::f32::consts::FRAC_1_PI,
+    )
 }
 
 #[inline(always)]
@@ -440,6 +494,7 @@ mod tests {
             .map(|k| Triangle {
                 p: base.map(|p| p + shift(k)),
                 n: None,
+                uv: None,
             })
             .collect();
         fixtures::scene(
@@ -500,6 +555,20 @@ mod tests {
                 .intersect(Vec3::new(3.0, 0.0, -5.0), Vec3::Z, f32::INFINITY, NONE)
                 .is_none());
         }
+    }
+
+    #[test]
+    fn sphere_uv_is_longitude_and_latitude() {
+        let at = |n: Vec3| sphere_uv(n.normalize());
+        assert_eq!(at(Vec3::X), Vec2::new(0.0, 0.5));
+        assert!((at(Vec3::NEG_Z) - Vec2::new(0.25, 0.5)).length() < 1e-6);
+        assert!((at(Vec3::NEG_X) - Vec2::new(0.5, 0.5)).length() < 1e-6);
+        assert!((at(Vec3::Z) - Vec2::new(0.75, 0.5)).length() < 1e-6);
+        assert_eq!(at(Vec3::Y).y, 0.0);
+        assert!((at(Vec3::NEG_Y).y - 1.0).abs() < 1e-6);
+        // Just short of a full turn stays below 1 (a texture wraps there).
+        let u = at(Vec3::new(1.0, 0.0, 1e-4)).x;
+        assert!(u > 0.99 && u < 1.0, "{u}");
     }
 
     #[test]

@@ -6,7 +6,7 @@ use crate::scene::{
     Camera, Display, Light, Material, ProgressiveSettings, RenderMode, RenderSettings, Scene,
     Shape, Triangle,
 };
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 /// A scene with the given content and default display/progressive settings.
 #[must_use]
@@ -30,6 +30,7 @@ pub fn scene(
         material_names,
         shapes,
         lights,
+        images: Vec::new(),
         render: RenderSettings {
             mode: RenderMode::Reference,
             samples_per_pixel: render.0,
@@ -41,7 +42,8 @@ pub fn scene(
     }
 }
 
-/// A parallelogram as two triangles; normal = `u × v` (scene-format.md `quad`).
+/// A parallelogram as two triangles; normal = `u × v` (scene-format.md `quad`), texture
+/// coordinates (s, t) of `corner + s·u + t·v`.
 #[must_use]
 pub fn quad(corner: Vec3, u: Vec3, v: Vec3, material: u32) -> Shape {
     let (a, b, c, d) = (corner, corner + u, corner + u + v, corner + v);
@@ -50,10 +52,12 @@ pub fn quad(corner: Vec3, u: Vec3, v: Vec3, material: u32) -> Shape {
             Triangle {
                 p: [a, b, c],
                 n: None,
+                uv: Some([Vec2::ZERO, Vec2::X, Vec2::ONE]),
             },
             Triangle {
                 p: [a, c, d],
                 n: None,
+                uv: Some([Vec2::ZERO, Vec2::ONE, Vec2::Y]),
             },
         ],
         material,
@@ -68,6 +72,7 @@ fn mesh(p: &[[f32; 3]], idx: &[[usize; 3]], material: u32) -> Shape {
             .map(|t| Triangle {
                 p: [v(t[0]), v(t[1]), v(t[2])],
                 n: None,
+                uv: None,
             })
             .collect(),
         material,

@@ -101,7 +101,7 @@ impl PathTracer {
             if depth >= max_bounces {
                 break;
             }
-            let bsdf = self.bsdf_at(s.info.material, s.p);
+            let bsdf = self.bsdf_at(&s);
             if ALBEDO && depth == 0 {
                 if let (Some(super::ResolvedMaterial::Textured(_)), Bsdf::Diffuse { albedo: a }) =
                     (self.materials.get(s.info.material as usize), bsdf)
@@ -195,13 +195,33 @@ impl PathTracer {
         l
     }
 
-    /// The BSDF of material `m` at world position `p` (textures looked up).
+    /// The BSDF of the surface at a hit (textures looked up at its position and
+    /// texture coordinates).
     #[inline]
-    fn bsdf_at(&self, m: u32, p: Vec3) -> Bsdf {
-        match self.materials.get(m as usize) {
+    fn bsdf_at(&self, s: &super::bvh::Surface) -> Bsdf {
+        let tex = |t| super::texture::eval(t, s.p, s.uv, &self.images);
+        match self.materials.get(s.info.material as usize) {
             Some(super::ResolvedMaterial::Fixed(b)) => *b,
-            Some(super::ResolvedMaterial::Textured(t)) => Bsdf::Diffuse {
-                albedo: super::texture::eval(t, p),
+            Some(super::ResolvedMaterial::Textured(t)) => Bsdf::Diffuse { albedo: tex(t) },
+            Some(super::ResolvedMaterial::TexturedMetalRough {
+                base,
+                metallic,
+                alpha,
+            }) => Bsdf::MetalRough {
+                base: tex(base),
+                metallic: *metallic,
+                alpha: *alpha,
+            },
+            Some(super::ResolvedMaterial::TexturedCoated {
+                reflectance,
+                eta,
+                alpha,
+                fdr_int,
+            }) => Bsdf::CoatedDiffuse {
+                albedo: tex(reflectance),
+                eta: *eta,
+                alpha: *alpha,
+                fdr_int: *fdr_int,
             },
             None => Bsdf::Black,
         }

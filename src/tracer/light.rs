@@ -34,6 +34,15 @@ pub enum Emitter {
         position: Vec3,
         intensity: Vec3,
     },
+    /// A point light limited to a cone ([`crate::scene::Light::Spot`]).
+    Spot {
+        position: Vec3,
+        direction: Vec3,
+        intensity: Vec3,
+        cos_inner: f32,
+        cos_outer: f32,
+        falloff: crate::scene::SpotFalloff,
+    },
     /// `direction`: where the light travels (unit).
     Directional {
         direction: Vec3,
@@ -161,6 +170,33 @@ impl Lights {
                 Light::Environment { radiance } => {
                     env += radiance;
                     has_env = true;
+                }
+                Light::Spot {
+                    position,
+                    direction,
+                    intensity,
+                    cos_inner,
+                    cos_outer,
+                    falloff,
+                } => {
+                    // pbrt-v4 SpotLight::Phi: the full cone, and half the falloff band
+                    // (exact for a linear ramp in cos θ, close for the others).
+                    let solid = 2.0
+                        * std::f64::consts::PI
+                        * ((1.0 - f64::from(cos_inner))
+                            + 0.5 * f64::from(cos_inner - cos_outer).max(0.0));
+                    let p = solid * f64::from(average(intensity));
+                    if p > 0.0 && intensity.is_finite() && direction != Vec3::ZERO {
+                        emitters.push(Emitter::Spot {
+                            position,
+                            direction,
+                            intensity,
+                            cos_inner,
+                            cos_outer,
+                            falloff,
+                        });
+                        power.push(p);
+                    }
                 }
             }
         }
@@ -301,6 +337,28 @@ impl Lights {
                     wi,
                     dist,
                     weight: w,
+                    pdf: 0.0,
+                    delta: true,
+                    prim: NONE,
+                })
+            }
+            Emitter::Spot {
+                position,
+                direction,
+                intensity,
+                cos_inner,
+                cos_outer,
+                falloff,
+            } => {
+                let (wi, dist) = dir_dist(p, position)?;
+                let f = falloff.weight(direction.dot(-wi), cos_inner, cos_outer);
+                if f <= 0.0 {
+                    return None;
+                }
+                Some(LightSample {
+                    wi,
+                    dist,
+                    weight: intensity * (f / (sel * dist * dist)),
                     pdf: 0.0,
                     delta: true,
                     prim: NONE,

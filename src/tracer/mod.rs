@@ -269,8 +269,22 @@ pub struct Features {
 pub(crate) enum ResolvedMaterial {
     /// The BSDF is the same everywhere on the surface.
     Fixed(Bsdf),
-    /// Diffuse with a procedural albedo.
+    /// Diffuse with a procedural or image albedo.
     Textured(crate::scene::Texture),
+    /// glTF metallic-roughness with a textured base colour.
+    TexturedMetalRough {
+        base: crate::scene::Texture,
+        metallic: f32,
+        alpha: f32,
+    },
+    /// A coated diffuse surface with a textured base: [`Bsdf::CoatedDiffuse`]'s other
+    /// fields.
+    TexturedCoated {
+        reflectance: crate::scene::Texture,
+        eta: f32,
+        alpha: f32,
+        fdr_int: f32,
+    },
 }
 
 /// The path tracer over a prepared scene (BVH, emitter list, feature flags). Immutable
@@ -284,6 +298,8 @@ pub struct PathTracer {
     pub(crate) primary: Option<primary::CameraRays>,
     pub(crate) lights: light::Lights,
     pub(crate) materials: Vec<ResolvedMaterial>,
+    /// The scene's decoded image textures (shared with it).
+    pub(crate) images: Vec<std::sync::Arc<crate::scene::TextureImage>>,
     pub(crate) max_bounces: u32,
     samples_per_pixel: u32,
     seed: u64,
@@ -318,14 +334,45 @@ impl PathTracer {
                     })
                 }
                 Material::MetallicRoughness {
-                    base_color,
+                    base_color: Texture::Constant(base),
                     metallic,
                     roughness,
                 } => ResolvedMaterial::Fixed(Bsdf::MetalRough {
-                    base: base_color,
+                    base,
                     metallic,
                     alpha: (roughness * roughness).max(material::MIN_ALPHA),
                 }),
+                Material::MetallicRoughness {
+                    base_color,
+                    metallic,
+                    roughness,
+                } => ResolvedMaterial::TexturedMetalRough {
+                    base: base_color,
+                    metallic,
+                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
+                },
+                Material::CoatedDiffuse {
+                    reflectance,
+                    roughness,
+                    ior,
+                } => {
+                    let (eta, alpha) = (ior, (roughness * roughness).max(material::MIN_ALPHA));
+                    let fdr_int = material::internal_diffuse_reflectance(ior);
+                    match reflectance {
+                        Texture::Constant(albedo) => ResolvedMaterial::Fixed(Bsdf::CoatedDiffuse {
+                            albedo,
+                            eta,
+                            alpha,
+                            fdr_int,
+                        }),
+                        reflectance => ResolvedMaterial::TexturedCoated {
+                            reflectance,
+                            eta,
+                            alpha,
+                            fdr_int,
+                        },
+                    }
+                }
                 Material::Mirror { reflectance } => {
                     ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
                 }
@@ -357,14 +404,17 @@ impl PathTracer {
                     Material::Glossy { .. }
                         | Material::Conductor { .. }
                         | Material::MetallicRoughness { .. }
+                        | Material::CoatedDiffuse { .. }
                 )
             }),
             has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
+            // Only a textured Lambertian surface gives the progressive loop an albedo to
+            // divide by (`PixelOracle::texture_albedo`).
             has_texture: used(&|m| {
                 matches!(
                     m,
                     Material::Diffuse {
-                        albedo: Texture::Checker { .. } | Texture::Noise { .. }
+                        albedo: Texture::Checker { .. } | Texture::Noise { .. } | Texture::Image(_)
                     }
                 )
             }),
@@ -383,6 +433,7 @@ impl PathTracer {
             primary,
             lights,
             materials,
+            images: scene.images.clone(),
             max_bounces: scene.render.max_bounces,
             samples_per_pixel: scene.render.samples_per_pixel,
             seed: scene.render.seed,
@@ -517,8 +568,10 @@ impl PathTracer {
         let hit = self.camera_hit(p.x, p.y, d)?;
         let s = self.geo.surface(self.camera.origin, d, &hit);
         match self.materials.get(s.info.material as usize)? {
-            ResolvedMaterial::Textured(t) => Some(texture::eval(t, s.p)),
-            ResolvedMaterial::Fixed(_) => None,
+            ResolvedMaterial::Textured(t) => Some(texture::eval(t, s.p, s.uv, &self.images)),
+            ResolvedMaterial::Fixed(_)
+            | ResolvedMaterial::TexturedMetalRough { .. }
+            | ResolvedMaterial::TexturedCoated { .. } => None,
         }
     }
 }

@@ -516,7 +516,11 @@ mod tests {
             let mut r = |s: f32| (rng.next_f32() * 2.0 - 1.0) * s;
             let mut shapes = Vec::new();
             let tri = |p: [Vec3; 3]| Shape::Triangles {
-                triangles: vec![Triangle { p, n: None }],
+                triangles: vec![Triangle {
+                    p,
+                    n: None,
+                    uv: None,
+                }],
                 material: 0,
             };
             for _ in 0..40 {
@@ -628,6 +632,7 @@ mod tests {
                 Vec3::new(i as f32, 0.5, -5.0),
             ],
             n: None,
+            uv: None,
         };
         let shapes = vec![Shape::Triangles {
             triangles: (0..MAX_PRIMS + 1).map(tri).collect(),

@@ -1,15 +1,20 @@
-//! Solid (3-D) textures evaluated at the world-space hit position (scene-format.md
-//! "textures").
+//! Textures: solid (3-D) ones evaluated at the world-space hit position (scene-format.md
+//! "textures"), images at the surface's texture coordinates.
 
-use crate::scene::Texture;
-use glam::Vec3;
+use crate::scene::{ImageMap, Texture, TextureImage, Wrap};
+use glam::{Vec2, Vec3};
+use std::sync::Arc;
 
-/// The albedo of `tex` at world position `p`.
+/// The albedo of `tex` at world position `p` and texture coordinates `uv`; `images` are
+/// the scene's.
 #[inline]
 #[must_use]
-pub fn eval(tex: &Texture, p: Vec3) -> Vec3 {
+pub fn eval(tex: &Texture, p: Vec3, uv: Vec2, images: &[Arc<TextureImage>]) -> Vec3 {
     match *tex {
         Texture::Constant(c) => c,
+        Texture::Image(m) => images
+            .get(m.image as usize)
+            .map_or(Vec3::ZERO, |img| image_lookup(img, &m, uv)),
         Texture::Checker { scale, a, b } => {
             // 3-D checker of period `scale`: parity of Σ floor(p / scale). A tiny scale can
             // put p / scale beyond i64 (or at ∞): the casts saturate and the sum wraps, so
@@ -30,6 +35,48 @@ pub fn eval(tex: &Texture, p: Vec3) -> Vec3 {
             let t = (0.5 + 0.5 * n).clamp(0.0, 1.0);
             a + (b - a) * t
         }
+    }
+}
+
+/// Bilinear lookup of `map`'s image at `uv`: texel (i, j) is centred on ((i + ½) / W,
+/// (j + ½) / H), so a lookup at a texel's centre returns that texel exactly, and one on
+/// the edge between two texels their mean; outside [0, 1) the image's `wrap` decides which
+/// texel a neighbour is (`Black`: none, zero). Non-finite coordinates read (0, 0).
+#[must_use]
+pub fn image_lookup(img: &TextureImage, map: &ImageMap, uv: Vec2) -> Vec3 {
+    let st = uv * map.scale + map.offset;
+    let st = if st.is_finite() { st } else { Vec2::ZERO };
+    let (w, h) = (i64::from(img.width), i64::from(img.height));
+    let x = st.x * img.width as f32 - 0.5;
+    let y = st.y * img.height as f32 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    // Saturating casts: coordinates beyond i64 land on its ends, still wrapped below.
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let texel = |i: i64, j: i64| -> Vec3 {
+        match (wrap(i, w, map.wrap), wrap(j, h, map.wrap)) {
+            (Some(i), Some(j)) => img.texels[(j * w + i) as usize],
+            _ => Vec3::ZERO,
+        }
+    };
+    let (x1, y1) = (x0.saturating_add(1), y0.saturating_add(1));
+    let top = texel(x0, y0) * (1.0 - fx) + texel(x1, y0) * fx;
+    let bottom = texel(x0, y1) * (1.0 - fx) + texel(x1, y1) * fx;
+    (top * (1.0 - fy) + bottom * fy) * map.factor
+}
+
+/// The texel index that `i` stands for in an image `n` texels wide, or `None` (black).
+#[inline]
+fn wrap(i: i64, n: i64, mode: Wrap) -> Option<i64> {
+    match mode {
+        Wrap::Repeat => Some(i.rem_euclid(n)),
+        Wrap::Clamp => Some(i.clamp(0, n - 1)),
+        Wrap::Mirror => {
+            // Period 2n: the image, then its mirror image.
+            let m = i.rem_euclid(2 * n);
+            Some(if m < n { m } else { 2 * n - 1 - m })
+        }
+        Wrap::Black => (0..n).contains(&i).then_some(i),
     }
 }
 
@@ -120,7 +167,7 @@ mod tests {
                     Texture::Checker { scale, a, b },
                     Texture::Noise { scale, a, b },
                 ] {
-                    let c = eval(&t, p);
+                    let c = eval(&t, p, Vec2::ZERO, &[]);
                     assert!(
                         c.is_finite() && c.cmpge(a.min(b)).all() && c.cmple(a.max(b)).all(),
                         "{t:?} at {p}: {c}"
@@ -129,8 +176,94 @@ mod tests {
             }
         }
         // Beyond i64 the noise is 0 (every lattice gradient sees a zero offset): mid-blend.
-        let mid = eval(&Texture::Noise { scale: 1e-30, a, b }, Vec3::splat(1e9));
+        let mid = eval(
+            &Texture::Noise { scale: 1e-30, a, b },
+            Vec3::splat(1e9),
+            Vec2::ZERO,
+            &[],
+        );
         assert!((mid - (a + b) * 0.5).abs().max_element() < 1e-6, "{mid}");
+    }
+
+    fn eval_at(t: &Texture, p: Vec3) -> Vec3 {
+        eval(t, p, Vec2::ZERO, &[])
+    }
+
+    /// A 2×2 image: red, green / blue, white (row 0 on top).
+    fn quad_image() -> TextureImage {
+        TextureImage {
+            width: 2,
+            height: 2,
+            texels: vec![Vec3::X, Vec3::Y, Vec3::Z, Vec3::ONE],
+        }
+    }
+
+    fn map(wrap: Wrap) -> ImageMap {
+        ImageMap {
+            image: 0,
+            factor: Vec3::ONE,
+            wrap,
+            scale: Vec2::ONE,
+            offset: Vec2::ZERO,
+        }
+    }
+
+    #[test]
+    fn image_lookups_at_texel_centres_and_edges() {
+        let img = quad_image();
+        let at = |u: f32, v: f32, w: Wrap| image_lookup(&img, &map(w), Vec2::new(u, v));
+        for w in [Wrap::Repeat, Wrap::Clamp, Wrap::Mirror, Wrap::Black] {
+            // Texel centres return the texel exactly.
+            assert_eq!(at(0.25, 0.25, w), Vec3::X, "{w:?}");
+            assert_eq!(at(0.75, 0.25, w), Vec3::Y, "{w:?}");
+            assert_eq!(at(0.25, 0.75, w), Vec3::Z, "{w:?}");
+            assert_eq!(at(0.75, 0.75, w), Vec3::ONE, "{w:?}");
+            // Between two texels: their mean; the image's centre: all four.
+            assert_eq!(at(0.5, 0.25, w), Vec3::new(0.5, 0.5, 0.0), "{w:?}");
+            assert_eq!(at(0.5, 0.5, w), Vec3::new(0.5, 0.5, 0.5), "{w:?}");
+            // A quarter of the way from red's centre to green's.
+            let q = at(0.375, 0.25, w);
+            assert!((q - Vec3::new(0.75, 0.25, 0.0)).abs().max_element() < 1e-6);
+        }
+        // At the image's left edge (u = 0, red row): the wrap decides the other neighbour.
+        assert_eq!(at(0.0, 0.25, Wrap::Repeat), Vec3::new(0.5, 0.5, 0.0)); // green wraps in
+        assert_eq!(at(0.0, 0.25, Wrap::Clamp), Vec3::X);
+        assert_eq!(at(0.0, 0.25, Wrap::Mirror), Vec3::X); // red's mirror image is red
+        assert_eq!(at(0.0, 0.25, Wrap::Black), Vec3::X * 0.5);
+        // Whole periods: repeat shifts by one image, mirror flips every other copy.
+        assert_eq!(at(1.25, 0.25, Wrap::Repeat), Vec3::X);
+        assert_eq!(at(-0.75, 0.75, Wrap::Repeat), Vec3::Z);
+        assert_eq!(at(1.25, 0.25, Wrap::Mirror), Vec3::Y);
+        assert_eq!(at(1.75, 0.25, Wrap::Mirror), Vec3::X);
+        assert_eq!(at(5.25, 9.25, Wrap::Clamp), Vec3::ONE);
+        assert_eq!(at(1.25, 0.25, Wrap::Black), Vec3::ZERO);
+        // Factor, scale and offset; non-finite and far coordinates stay in the image.
+        let m = ImageMap {
+            factor: Vec3::splat(0.5),
+            scale: Vec2::splat(2.0),
+            offset: Vec2::new(0.5, 0.0),
+            ..map(Wrap::Repeat)
+        };
+        // uv (0.125, 0.125) → st (0.75, 0.25): green, halved.
+        assert_eq!(image_lookup(&img, &m, Vec2::splat(0.125)), Vec3::Y * 0.5);
+        for uv in [
+            Vec2::NAN,
+            Vec2::splat(f32::INFINITY),
+            Vec2::splat(1e30),
+            Vec2::splat(-3e18),
+        ] {
+            for w in [Wrap::Repeat, Wrap::Clamp, Wrap::Mirror, Wrap::Black] {
+                let c = image_lookup(&img, &map(w), uv);
+                assert!(c.is_finite() && c.cmple(Vec3::ONE).all(), "{uv} {w:?}: {c}");
+            }
+        }
+        // Through `eval`, with the scene's image list.
+        let images = [Arc::new(img.clone())];
+        let t = Texture::Image(map(Wrap::Repeat));
+        assert_eq!(
+            eval(&t, Vec3::ZERO, Vec2::new(0.75, 0.75), &images),
+            Vec3::ONE
+        );
     }
 
     #[test]
@@ -140,11 +273,11 @@ mod tests {
             a: Vec3::ONE,
             b: Vec3::ZERO,
         };
-        assert_eq!(eval(&t, Vec3::new(0.5, 0.5, 0.5)), Vec3::ONE);
-        assert_eq!(eval(&t, Vec3::new(2.5, 0.5, 0.5)), Vec3::ZERO);
-        assert_eq!(eval(&t, Vec3::new(-0.5, 0.5, 0.5)), Vec3::ZERO);
-        assert_eq!(eval(&t, Vec3::new(4.5, 0.5, 0.5)), Vec3::ONE);
-        assert_eq!(eval(&t, Vec3::new(2.5, 2.5, 0.5)), Vec3::ONE);
+        assert_eq!(eval_at(&t, Vec3::new(0.5, 0.5, 0.5)), Vec3::ONE);
+        assert_eq!(eval_at(&t, Vec3::new(2.5, 0.5, 0.5)), Vec3::ZERO);
+        assert_eq!(eval_at(&t, Vec3::new(-0.5, 0.5, 0.5)), Vec3::ZERO);
+        assert_eq!(eval_at(&t, Vec3::new(4.5, 0.5, 0.5)), Vec3::ONE);
+        assert_eq!(eval_at(&t, Vec3::new(2.5, 2.5, 0.5)), Vec3::ONE);
     }
 
     #[test]
@@ -162,7 +295,7 @@ mod tests {
                 (i % 17) as f32 * 1.3,
                 1e5 + i as f32 * 0.11,
             );
-            let c = eval(&t, p);
+            let c = eval(&t, p, Vec2::ZERO, &[]);
             assert!(c.x >= 0.2 - 1e-6 && c.x <= 0.8 + 1e-6);
             lo = lo.min(c.x);
             hi = hi.max(c.x);

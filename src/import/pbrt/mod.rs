@@ -28,9 +28,9 @@ use self::params::{Params, Values};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
-    CameraDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc, EmissiveDoc,
-    EnvironmentLightDoc, LightDoc, MaterialDoc, MeshDoc, ObjectDoc, PointLightDoc, RenderDoc,
-    SceneDoc, SphereDoc,
+    CameraDoc, CoatedDiffuseDoc, ConductorDoc, DielectricDoc, DiffuseDoc, DirectionalLightDoc,
+    EmissiveDoc, EnvironmentLightDoc, FalloffDoc, ImageTextureDoc, LightDoc, MaterialDoc, MeshDoc,
+    ObjectDoc, PointLightDoc, RenderDoc, SceneDoc, SphereDoc, SpotLightDoc, TextureDoc, WrapDoc,
 };
 
 /// Includes may nest this deep (a file including itself is refused here).
@@ -72,6 +72,13 @@ struct Emission {
     two_sided: bool,
 }
 
+/// A material's colour parameter: a constant or an image texture.
+#[derive(Clone, Debug)]
+enum Reflectance {
+    Rgb([f64; 3]),
+    Image(ImageTextureDoc),
+}
+
 /// The graphics state pbrt saves with `AttributeBegin`.
 #[derive(Clone, Debug)]
 struct State {
@@ -87,6 +94,8 @@ enum Prim {
     Mesh {
         positions: Vec<DVec3>,
         normals: Option<Vec<DVec3>>,
+        /// pbrt's own (u, v) per point, untransformed.
+        uvs: Option<Vec<[f32; 2]>>,
         indices: Vec<[u32; 3]>,
         /// Surface normal = −winding normal (the transform swaps handedness xor
         /// `ReverseOrientation`); ignored when there are normals.
@@ -109,8 +118,8 @@ struct Importer<'a> {
     stack: Vec<(State, Pos)>,
     named_coords: HashMap<String, DMat4>,
     materials: BTreeMap<String, MaterialDoc>,
-    /// Texture name → its mean colour (the tracer renders image textures as that).
-    textures: HashMap<String, [f64; 3]>,
+    /// Texture name → a colour or an image.
+    textures: HashMap<String, Reflectance>,
     anonymous: usize,
     camera: Option<(DMat4, f64)>,
     size: (u64, u64),
@@ -588,13 +597,13 @@ impl Importer<'_> {
         }
     }
 
-    /// A reflectance: an RGB, a float, or a texture (rendered as its mean colour).
+    /// A reflectance: an RGB, a float, or a texture.
     fn reflectance(
         &self,
         p: &Params,
         name: &str,
         default: [f64; 3],
-    ) -> Result<[f64; 3], ImportError> {
+    ) -> Result<Reflectance, ImportError> {
         match p.get(name) {
             Some(param) if param.ty == "texture" => {
                 let (t, pos) = p
@@ -602,10 +611,10 @@ impl Importer<'_> {
                     .ok_or_else(|| param.pos.error("texture name expected"))?;
                 self.textures
                     .get(t)
-                    .copied()
+                    .cloned()
                     .ok_or_else(|| pos.error(format!("unknown texture \"{t}\"")))
             }
-            _ => self.spectrum(p, name, default),
+            _ => self.spectrum(p, name, default).map(Reflectance::Rgb),
         }
     }
 
@@ -640,13 +649,16 @@ impl Importer<'_> {
     fn material(&mut self, ty: &str, p: &Params, pos: &Pos) -> Result<MaterialDoc, ImportError> {
         let rgb = |v: [f64; 3]| v.map(|c| c as f32);
         Ok(match ty {
-            "diffuse" => {
-                let r = self.reflectance(p, "reflectance", [0.5; 3])?;
-                MaterialDoc::Diffuse(DiffuseDoc {
+            "diffuse" => match self.reflectance(p, "reflectance", [0.5; 3])? {
+                Reflectance::Rgb(r) => MaterialDoc::Diffuse(DiffuseDoc {
                     albedo: Some(rgb(r.map(|c| c.min(1.0)))),
                     texture: None,
-                })
-            }
+                }),
+                Reflectance::Image(t) => MaterialDoc::Diffuse(DiffuseDoc {
+                    albedo: None,
+                    texture: Some(TextureDoc::Image(t)),
+                }),
+            },
             "conductor" => {
                 if p.get("reflectance").is_some() {
                     self.warn(
@@ -661,6 +673,32 @@ impl Importer<'_> {
                     eta: rgb(eta),
                     k: rgb(k),
                     roughness,
+                })
+            }
+            "coateddiffuse" => {
+                let eta = match p.get("eta") {
+                    Some(param) if matches!(param.values, Values::Strs(_)) => {
+                        self.warn(&param.pos, "named glass spectrum: rendered with η = 1.5");
+                        1.5
+                    }
+                    _ => p.float("eta", 1.5)?,
+                };
+                if !(eta > 0.0) {
+                    return Err(pos.error(format!("coateddiffuse eta must be > 0, got {eta}")));
+                }
+                if p.get("albedo").is_some() || p.get("g").is_some() {
+                    self.warn(pos, "coateddiffuse: the medium between coat and base (albedo, g, thickness) is not modelled: clear");
+                }
+                let roughness = self.roughness(p, pos)?;
+                let (reflectance, texture) = match self.reflectance(p, "reflectance", [0.5; 3])? {
+                    Reflectance::Rgb(r) => (Some(rgb(r.map(|c| c.min(1.0)))), None),
+                    Reflectance::Image(t) => (None, Some(TextureDoc::Image(t))),
+                };
+                MaterialDoc::CoatedDiffuse(CoatedDiffuseDoc {
+                    reflectance,
+                    texture,
+                    roughness,
+                    ior: eta as f32,
                 })
             }
             "dielectric" | "thindielectric" => {
@@ -722,7 +760,7 @@ impl Importer<'_> {
         class: &str,
         p: &Params,
         pos: &Pos,
-    ) -> Result<[f64; 3], ImportError> {
+    ) -> Result<Reflectance, ImportError> {
         match class {
             "imagemap" => {
                 let (file, fpos) = p
@@ -748,23 +786,60 @@ impl Importer<'_> {
                             &fpos,
                             format!("{}: texture \"{name}\" rendered as grey 0.5", e.message),
                         );
-                        return Ok([0.5; 3]);
+                        return Ok(Reflectance::Rgb([0.5; 3]));
                     }
                 };
-                let mean = super::texture::mean_colour(
+                let mut doc = super::texture::image_texture(
                     &file,
+                    None,
                     &bytes,
                     encoding,
                     self.limits.max_texture_pixels,
                 )
                 .map_err(|e| fpos.error(format!("\"{file}\": {e}")))?;
-                self.warn(&fpos, format!("image texture \"{name}\" is rendered as its mean colour ({:.3}, {:.3}, {:.3})", mean[0] * scale as f32, mean[1] * scale as f32, mean[2] * scale as f32));
-                Ok(mean.map(|c| f64::from(c) * scale))
+                if !(0.0..=1.0).contains(&scale) {
+                    self.warn(
+                        pos,
+                        format!(
+                            "texture \"{name}\": scale {scale} clamped to [0, 1] (a reflectance)"
+                        ),
+                    );
+                }
+                doc.factor = [scale.clamp(0.0, 1.0) as f32; 3];
+                if p.boolean("invert", false)? {
+                    self.warn(pos, format!("texture \"{name}\": invert is not modelled"));
+                }
+                doc.wrap = match p.string("wrap")?.map(|(w, _)| w) {
+                    None | Some("repeat") => WrapDoc::Repeat,
+                    Some("black") => WrapDoc::Black,
+                    Some("clamp") => WrapDoc::Clamp,
+                    Some(other) => {
+                        self.warn(
+                            pos,
+                            format!("texture \"{name}\": wrap \"{other}\" rendered as repeat"),
+                        );
+                        WrapDoc::Repeat
+                    }
+                };
+                // pbrt-v4 UVMapping: (s, t) = (su·u + du, sv·v + dv), and ImageTexture reads
+                // the image at (s, 1 − t) with (0, 0) its top-left corner; the document's
+                // mapping is uv × uv_scale + uv_offset on the same image axes.
+                let (su, sv) = (p.float("uscale", 1.0)?, p.float("vscale", 1.0)?);
+                let (du, dv) = (p.float("udelta", 0.0)?, p.float("vdelta", 0.0)?);
+                if let Some((m, _)) = p.string("mapping")?.filter(|(m, _)| *m != "uv") {
+                    self.warn(
+                        pos,
+                        format!("texture \"{name}\": mapping \"{m}\" rendered as uv"),
+                    );
+                }
+                doc.uv_scale = [su as f32, -sv as f32];
+                doc.uv_offset = [du as f32, (1.0 - dv) as f32];
+                Ok(Reflectance::Image(doc))
             }
-            "constant" => self.spectrum(p, "value", [1.0; 3]),
+            "constant" => self.spectrum(p, "value", [1.0; 3]).map(Reflectance::Rgb),
             other => {
                 self.warn(pos, format!("texture \"{name}\" of class \"{other}\" is not modelled: rendered as grey 0.5"));
-                Ok([0.5; 3])
+                Ok(Reflectance::Rgb([0.5; 3]))
             }
         }
     }
@@ -785,6 +860,37 @@ impl Importer<'_> {
                     intensity: i.map(|c| (c * scale) as f32),
                 }));
                 self.light_frames.push((Some(at), None));
+            }
+            "spot" => {
+                if p.get("power").is_some() {
+                    self.warn(pos, "light \"power\" ignored: the intensity I is used");
+                }
+                let i = self.spectrum(p, "I", [1.0; 3])?;
+                let from = DVec3::from(p.triple("from")?.unwrap_or([0.0; 3]));
+                let to = DVec3::from(p.triple("to")?.unwrap_or([0.0, 0.0, 1.0]));
+                let at = m.transform_point3(from);
+                let d = m
+                    .transform_vector3(to - from)
+                    .try_normalize()
+                    .ok_or_else(|| pos.error("spot light: from and to coincide"))?;
+                // pbrt-v4 SpotLight: full intensity within coneangle − conedelta of the
+                // axis, smoothstep in cos θ down to zero at coneangle.
+                let cone = p.float("coneangle", 30.0)?;
+                let delta = p.float("conedelta", 5.0)?;
+                if !(0.0..=180.0).contains(&cone) || !(delta >= 0.0) {
+                    return Err(pos.error(format!(
+                        "spot light: coneangle must be in [0, 180] and conedelta ≥ 0, got {cone} and {delta}"
+                    )));
+                }
+                self.lights.push(LightDoc::Spot(SpotLightDoc {
+                    position: at.as_vec3().to_array(),
+                    direction: d.as_vec3().to_array(),
+                    intensity: i.map(|c| (c * scale) as f32),
+                    outer_angle: cone as f32,
+                    inner_angle: (cone - delta).max(0.0) as f32,
+                    falloff: FalloffDoc::Smoothstep,
+                }));
+                self.light_frames.push((Some(at), Some(d)));
             }
             "distant" => {
                 let l = self.spectrum(p, "L", [1.0; 3])?;
@@ -815,7 +921,7 @@ impl Importer<'_> {
             }
             other => {
                 return Err(pos.error(format!(
-                    "light \"{other}\" is not supported (point, distant, infinite)"
+                    "light \"{other}\" is not supported (point, spot, distant, infinite)"
                 )))
             }
         }
@@ -861,7 +967,7 @@ impl Importer<'_> {
         } else {
             emission
         };
-        let (positions, normals, indices) = match ty {
+        let (positions, normals, uvs, indices) = match ty {
             "sphere" => {
                 let r = p.float("radius", 1.0)?;
                 if !(r > 0.0) {
@@ -917,6 +1023,7 @@ impl Importer<'_> {
                 (
                     mesh.positions.iter().map(pos3).collect(),
                     mesh.normals.map(|ns| ns.iter().map(pos3).collect()),
+                    mesh.uvs,
                     mesh.indices,
                 )
             }
@@ -931,6 +1038,7 @@ impl Importer<'_> {
         let prim = Prim::Mesh {
             positions: positions.iter().map(|&q| m.transform_point3(q)).collect(),
             normals: normals.map(|ns: Vec<DVec3>| ns.iter().map(|&n| normal_m * n).collect()),
+            uvs,
             indices,
             flip,
             material,
@@ -940,15 +1048,23 @@ impl Importer<'_> {
         Ok(())
     }
 
-    /// `trianglemesh` (`P`, `indices`, `N`) or `bilinearmesh` (`P`, `indices` of quads
-    /// p00 p10 p01 p11, split into two triangles).
+    /// `trianglemesh` (`P`, `indices`, `N`, `uv`) or `bilinearmesh` (`P`, `indices` of
+    /// quads p00 p10 p01 p11, split into two triangles).
     #[allow(clippy::type_complexity)]
     fn inline_mesh(
         &mut self,
         ty: &str,
         p: &Params,
         pos: &Pos,
-    ) -> Result<(Vec<DVec3>, Option<Vec<DVec3>>, Vec<[u32; 3]>), ImportError> {
+    ) -> Result<
+        (
+            Vec<DVec3>,
+            Option<Vec<DVec3>>,
+            Option<Vec<[f32; 2]>>,
+            Vec<[u32; 3]>,
+        ),
+        ImportError,
+    > {
         let (pts, ppos) = p
             .nums("P")?
             .ok_or_else(|| pos.error(format!("{ty} has no \"point3 P\"")))?;
@@ -1014,7 +1130,26 @@ impl Importer<'_> {
                 )
             }
         };
-        Ok((positions, normals, indices))
+        // pbrt-v4 calls them `uv` (pbrt-v3 files may still say `st`).
+        let uv_param = if p.get("uv").is_some() { "uv" } else { "st" };
+        let uvs = match p.nums(uv_param)? {
+            None => None,
+            Some((v, upos)) => {
+                if v.len() != 2 * n {
+                    return Err(upos.error(format!(
+                        "\"{uv_param}\" must hold 2 numbers per point ({}), got {}",
+                        2 * n,
+                        v.len()
+                    )));
+                }
+                Some(
+                    v.chunks_exact(2)
+                        .map(|c| [c[0] as f32, c[1] as f32])
+                        .collect(),
+                )
+            }
+        };
+        Ok((positions, normals, uvs, indices))
     }
 
     /// The scene document: materials, objects (world space, mirrored when pbrt's camera
@@ -1076,6 +1211,16 @@ impl Importer<'_> {
                             .transform_vector3(dir.unwrap_or(DVec3::Z))
                             .as_vec3()
                             .to_array()
+                    }
+                    LightDoc::Spot(sl) => {
+                        sl.position = m
+                            .transform_point3(at.unwrap_or_default())
+                            .as_vec3()
+                            .to_array();
+                        sl.direction = m
+                            .transform_vector3(dir.unwrap_or(DVec3::Z))
+                            .as_vec3()
+                            .to_array();
                     }
                     LightDoc::Environment(_) => {}
                 }
@@ -1171,6 +1316,7 @@ fn transform_prim(p: &Prim, m: &DMat4) -> Prim {
         Prim::Mesh {
             positions,
             normals,
+            uvs,
             indices,
             flip,
             material,
@@ -1182,6 +1328,7 @@ fn transform_prim(p: &Prim, m: &DMat4) -> Prim {
                 normals: normals
                     .as_ref()
                     .map(|ns| ns.iter().map(|&n| nm * n).collect()),
+                uvs: uvs.clone(),
                 indices: indices.clone(),
                 flip: *flip ^ (DMat3::from_mat4(*m).determinant() < 0.0),
                 material: material.clone(),
@@ -1218,6 +1365,7 @@ fn object_doc(p: Prim, material: String, mirror: &DMat4, mirrored: bool) -> Obje
         Prim::Mesh {
             positions,
             normals,
+            uvs,
             mut indices,
             flip,
             ..
@@ -1255,6 +1403,7 @@ fn object_doc(p: Prim, material: String, mirror: &DMat4, mirrored: bool) -> Obje
                     })
                     .filter(|ns| ns.iter().all(|n| n.length_squared() > 0.0 && n.is_finite()))
                     .map(|ns| ns.iter().map(|n| n.to_array()).collect()),
+                uvs: uvs.filter(|uv| uv.iter().flatten().all(|c| c.is_finite())),
                 material,
                 transform: None,
             })
