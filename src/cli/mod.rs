@@ -41,6 +41,11 @@ pub struct ServeArgs {
     pub data: PathBuf,
     #[arg(long, default_value_t = 1)]
     pub workers: usize,
+    /// Where the jobs live: `sqlite://DIR` (the same as `--data DIR`) or
+    /// `postgres://USER@HOST/DB` (shared/spec/cluster.md); the password may come from
+    /// `PGPASSWORD`.
+    #[arg(long, value_parser = crate::service::store::Database::parse)]
+    pub database: Option<crate::service::store::Database>,
     /// Require `Authorization: Bearer TOKEN` on every /v1 call.
     #[arg(long, env = "GLIMPSE_TOKEN")]
     pub token: Option<String>,
@@ -177,6 +182,7 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
             );
         }
         let mut config = crate::service::Config::new(a.data);
+        config.database = a.database;
         config.workers = a.workers;
         config.token = a.token;
         config.queue_capacity = a.queue;

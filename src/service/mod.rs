@@ -12,6 +12,7 @@
 //! - [`examples`]: the bundled scenes; [`viewer`]: the browser page.
 
 pub mod auth;
+pub mod error_code;
 pub mod examples;
 pub mod http;
 pub mod jobs;
@@ -29,7 +30,10 @@ use std::time::Duration;
 /// Everything the service needs, parsed once in `main`.
 #[derive(Clone, Debug)]
 pub struct Config {
+    /// The image files of finished jobs (and, without `database`, the SQLite store).
     pub data_dir: PathBuf,
+    /// `--database`: SQLite in `data_dir` when absent.
+    pub database: Option<store::Database>,
     /// Concurrent renders (each render already uses every core through rayon, so more
     /// than one or two workers only helps many small jobs).
     pub workers: usize,
@@ -67,6 +71,7 @@ impl Config {
     pub fn new(data_dir: impl Into<PathBuf>) -> Self {
         Self {
             data_dir: data_dir.into(),
+            database: None,
             workers: 1,
             token: None,
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
@@ -137,12 +142,18 @@ pub async fn run(
     config: Config,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    let store = store::Store::open(&config.data_dir).await.map_err(|e| {
-        anyhow::anyhow!(
-            "cannot open the job store in {}: {e}",
-            config.data_dir.display()
-        )
-    })?;
+    let database = config
+        .database
+        .clone()
+        .unwrap_or_else(|| store::Database::Sqlite(config.data_dir.clone()));
+    // With `sqlite://DIR` the images live beside that database, as with `--data DIR`.
+    let files_dir = match &database {
+        store::Database::Sqlite(dir) => dir.clone(),
+        store::Database::Postgres(_) => config.data_dir.clone(),
+    };
+    let store = store::Store::connect(&database, &files_dir)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
     let metrics = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,
