@@ -563,15 +563,24 @@ async fn viewer() -> impl IntoResponse {
 /// while the store's disk refuses writes (jobs wait, submissions get 503; it clears by
 /// itself once a write succeeds again).
 async fn healthz(State(st): State<AppState>) -> Response {
-    let Some(fault) = st.jobs.store_fault() else {
-        return axum::Json(json!({ "status": "ok" })).into_response();
+    let (status, message) = match (st.jobs.store_fault(), st.jobs.ping_store().await) {
+        (None, Ok(())) => {
+            let body = json!({ "status": "ok", "database": st.jobs.store_backend() });
+            return axum::Json(body).into_response();
+        }
+        // cluster.md: `/healthz` says whether the node reaches its database.
+        (_, Err(e)) => (
+            "database_unreachable",
+            format!("this node cannot reach its job database: {e}"),
+        ),
+        (Some(fault), Ok(())) => (
+            "store_fault",
+            format!("the job store cannot be written: {fault}"),
+        ),
     };
-    let e = ApiError::unavailable(
-        format!("the job store cannot be written: {fault}"),
-        STORE_RETRY_AFTER_S,
-    );
+    let e = ApiError::unavailable(message, STORE_RETRY_AFTER_S);
     let mut body = e.body();
-    body["status"] = json!("store_fault");
+    body["status"] = json!(status);
     let mut res = (StatusCode::SERVICE_UNAVAILABLE, axum::Json(body)).into_response();
     res.headers_mut()
         .insert(header::RETRY_AFTER, HeaderValue::from(STORE_RETRY_AFTER_S));

@@ -541,6 +541,9 @@ const WRITE_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
 /// server takes (a 4096² image at 256 spp, `server_limits`) runs for minutes to an hour.
 pub const DEFAULT_JOB_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2 * 3600);
 
+/// How long `/healthz` waits for the database before it says the node cannot reach it.
+const PING_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// Handle to the job machinery (cheap to clone; shared by every request handler).
 #[derive(Clone)]
 pub struct Jobs {
@@ -628,9 +631,19 @@ impl Jobs {
         self.inner.store.count_by_state().await
     }
 
-    /// Does this node reach its database? (`/healthz`)
-    pub async fn ping_store(&self) -> Result<(), StoreError> {
-        self.inner.store.ping().await
+    /// Does this node reach its database? (`/healthz`; a database that does not answer
+    /// within [`PING_TIMEOUT`] counts as unreachable.)
+    pub async fn ping_store(&self) -> Result<(), String> {
+        match tokio::time::timeout(PING_TIMEOUT, self.inner.store.ping()).await {
+            Ok(r) => r.map_err(|e| e.to_string()),
+            Err(_) => Err(format!("no answer within {PING_TIMEOUT:?}")),
+        }
+    }
+
+    /// `sqlite` or `postgres`.
+    #[must_use]
+    pub fn store_backend(&self) -> &'static str {
+        self.inner.store.backend()
     }
 
     #[must_use]
@@ -913,6 +926,7 @@ fn worker_loop(inner: &Arc<Inner>) {
         let mut job = live.snapshot().job.clone();
         job.state = JobState::Running;
         job.started_at = Some(started);
+        job.attempt += 1;
         live.publish(job.clone(), None);
         tracing::info!(%id, state = "running", "job started");
         inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);

@@ -129,6 +129,9 @@ macro_rules! on_pool {
     };
 }
 
+mod lease;
+pub use lease::{Beat, Claim, LeaseToken, Reaped, MAX_LEASE_ATTEMPTS};
+
 /// The job store (cheap to clone: a pool handle and a folder).
 #[derive(Clone, Debug)]
 pub struct Store {
@@ -210,6 +213,8 @@ impl Store {
             progress: None,
             stats: None,
             error: None,
+            attempt: 0,
+            worker: None,
             has_frame: false,
         })
     }

@@ -141,6 +141,11 @@ pub struct JobRecord {
     pub progress: Option<Progress>,
     pub stats: Option<RenderStats>,
     pub error: Option<JobError>,
+    /// Starts of the job so far: 1 on its first run, 2 once a worker running it was
+    /// lost and another took it over (cluster.md).
+    pub attempt: u32,
+    /// The worker node that runs (or last ran) the job, on a shared database.
+    pub worker: Option<String>,
     /// True once a frame was stored (`GET .../frame` can answer after a restart).
     #[serde(skip)]
     pub has_frame: bool,
@@ -158,11 +163,13 @@ pub(super) struct Row {
     progress: Option<String>,
     stats: Option<String>,
     error: Option<String>,
+    attempts: i64,
+    worker: Option<String>,
     has_frame: i64,
 }
 
 pub(super) const COLUMNS: &str =
-    "id, name, state, created_at, started_at, finished_at, progress, stats, error, has_frame";
+    "id, name, state, created_at, started_at, finished_at, progress, stats, error, attempts, worker, has_frame";
 
 impl Row {
     pub(super) fn into_record(self) -> Result<JobRecord, StoreError> {
@@ -185,6 +192,8 @@ impl Row {
             created_at: self.created_at,
             started_at: self.started_at,
             finished_at: self.finished_at,
+            attempt: u32::try_from(self.attempts).unwrap_or(0),
+            worker: self.worker,
             has_frame: self.has_frame != 0,
         })
     }
