@@ -6,7 +6,8 @@
 //! - [`http`]: router, limit layers, extractors, `ApiError` (the only type that knows
 //!   status codes);
 //! - [`jobs`]: bounded queue, worker threads, cancellation, state transitions, ETA;
-//! - [`store`]: SQLite (sqlx, WAL) job records and the final images beside them;
+//! - [`store`]: job records on SQLite or PostgreSQL (sqlx), claims and leases, and the
+//!   final images beside them; [`error_code`]: the stable error codes;
 //! - [`ws`]: the stream protocol over a `watch` channel per job;
 //! - [`metrics`]: Prometheus text; [`auth`]: the optional bearer token;
 //! - [`examples`]: the bundled scenes; [`viewer`]: the browser page.
