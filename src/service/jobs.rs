@@ -438,7 +438,7 @@ pub struct StoredFrame {
 pub enum Watch {
     NotFound,
     Live(watch::Receiver<Arc<Snapshot>>),
-    Stored(JobRecord, Option<StoredFrame>),
+    Stored(Box<JobRecord>, Option<StoredFrame>),
 }
 
 pub enum DeleteOutcome {
@@ -713,7 +713,7 @@ impl Jobs {
         } else {
             None
         };
-        Ok(Watch::Stored(job, frame))
+        Ok(Watch::Stored(Box::new(job), frame))
     }
 
     /// The stored final image of a finished job and the layers stored beside it; `None`
