@@ -7,9 +7,18 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# The Rust toolchain is the machine's own (rustup); nothing else is needed for cargo test:
-# SQLite is compiled in (sqlx's bundled libsqlite3), FLIP's C++ is built by its crate.
+# The Rust toolchain is the machine's own (rustup). SQLite is compiled in (sqlx's bundled
+# libsqlite3), FLIP's C++ is built by its crate. PostgreSQL: the server named by
+# GLIMPSE_TEST_DATABASE_URL, or else a throwaway PostgreSQL 15 started here (scripts/pg.sh
+# installs the package only if it is missing) and stopped when the tests end.
+if [ -z "${GLIMPSE_TEST_DATABASE_URL:-}" ]; then
+  trap 'bash scripts/pg.sh stop' EXIT
+  GLIMPSE_TEST_DATABASE_URL=$(bash scripts/pg.sh ensure)
+  export GLIMPSE_TEST_DATABASE_URL
+fi
 cargo test --no-fail-fast
+# The service contract and durability tests once more, on PostgreSQL (cluster.md).
+GLIMPSE_TEST_BACKEND=postgres cargo test --no-fail-fast --test service_api --test service_durability
 
 if [ -f tests/browser/run.sh ] && [ "${GLIMPSE_SKIP_BROWSER:-0}" != 1 ]; then
   bash tests/browser/run.sh

@@ -31,6 +31,7 @@ impl Server {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let mut config = glimpse::service::Config::new(dir);
+        config.database = common::test_database(dir).await;
         tweak(&mut config);
         let (tx, rx) = tokio::sync::oneshot::channel::<()>();
         let task = tokio::spawn(glimpse::service::run(listener, config, async {

@@ -48,6 +48,11 @@ pub struct ServeArgs {
     /// short jobs wait less behind long ones.
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub workers: usize,
+    /// Where the jobs live: `sqlite://DIR` (the same as `--data DIR`) or
+    /// `postgres://USER@HOST/DB` (shared/spec/cluster.md); the password may come from
+    /// `PGPASSWORD`.
+    #[arg(long, value_parser = crate::service::store::Database::parse)]
+    pub database: Option<crate::service::store::Database>,
     /// Require `Authorization: Bearer TOKEN` on every /v1 call.
     #[arg(long, env = "GLIMPSE_TOKEN")]
     pub token: Option<String>,
@@ -198,6 +203,7 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
             );
         }
         let mut config = crate::service::Config::new(a.data);
+        config.database = a.database;
         config.workers = a.workers;
         config.token = a.token;
         config.queue_capacity = a.queue;

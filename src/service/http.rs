@@ -7,11 +7,10 @@
 //! produce on their own (unknown route, wrong method, body over the limit) into the
 //! same shape, so a client never has to parse plain text.
 
-use super::jobs::{CancelOutcome, DeleteOutcome, Jobs, SubmitError};
+use super::jobs::{CancelOutcome, DeleteOutcome, FrameBytes, FrameLookup, Jobs, SubmitError};
 use super::metrics::Metrics;
-use super::store::{clip, JobRecord, JobState, StoreError};
+use super::store::{clip, JobRecord, JobState, Layer, StoreError};
 use super::{auth, examples, ws};
-use crate::progressive::layers::LAYERS;
 use crate::scene::{parse_scene, RenderMode, SceneErrorKind, SceneOrigin};
 use axum::extract::{FromRequest, FromRequestParts, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -52,53 +51,7 @@ pub struct AppState {
 // ---------------------------------------------------------------------------------------
 // Errors
 
-/// The stable machine-readable error codes of service-api.md "Errors".
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ErrorCode {
-    InvalidJson,
-    InvalidScene,
-    InvalidParameter,
-    TooLarge,
-    NotFound,
-    MethodNotAllowed,
-    Conflict,
-    QueueFull,
-    Unauthorized,
-    Unavailable,
-    /// The request (headers aside) was not received and answered within
-    /// [`REQUEST_DEADLINE`]: a client trickling its body.
-    RequestTimeout,
-    /// A body that is not a scene document's or an import's type, or that is encoded.
-    UnsupportedMediaType,
-    /// `Host` names another server (DNS rebinding), without a token.
-    MisdirectedRequest,
-    /// A request from a page of another origin, without a token.
-    Forbidden,
-    Internal,
-}
-
-impl ErrorCode {
-    #[must_use]
-    pub fn status(self) -> StatusCode {
-        match self {
-            ErrorCode::InvalidJson | ErrorCode::InvalidParameter => StatusCode::BAD_REQUEST,
-            ErrorCode::InvalidScene => StatusCode::UNPROCESSABLE_ENTITY,
-            ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
-            ErrorCode::NotFound => StatusCode::NOT_FOUND,
-            ErrorCode::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
-            ErrorCode::Conflict => StatusCode::CONFLICT,
-            ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
-            ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
-            ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
-            ErrorCode::RequestTimeout => StatusCode::REQUEST_TIMEOUT,
-            ErrorCode::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            ErrorCode::MisdirectedRequest => StatusCode::MISDIRECTED_REQUEST,
-            ErrorCode::Forbidden => StatusCode::FORBIDDEN,
-            ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
-        }
-    }
-}
+pub use super::error_code::ErrorCode;
 
 /// An error response. Internal causes are logged, not shown (the message stays generic).
 #[derive(Debug)]
@@ -611,15 +564,24 @@ async fn viewer() -> impl IntoResponse {
 /// while the store's disk refuses writes (jobs wait, submissions get 503; it clears by
 /// itself once a write succeeds again).
 async fn healthz(State(st): State<AppState>) -> Response {
-    let Some(fault) = st.jobs.store_fault() else {
-        return axum::Json(json!({ "status": "ok" })).into_response();
+    let (status, message) = match (st.jobs.store_fault(), st.jobs.ping_store().await) {
+        (None, Ok(())) => {
+            let body = json!({ "status": "ok", "database": st.jobs.store_backend() });
+            return axum::Json(body).into_response();
+        }
+        // cluster.md: `/healthz` says whether the node reaches its database.
+        (_, Err(e)) => (
+            "database_unreachable",
+            format!("this node cannot reach its job database: {e}"),
+        ),
+        (Some(fault), Ok(())) => (
+            "store_fault",
+            format!("the job store cannot be written: {fault}"),
+        ),
     };
-    let e = ApiError::unavailable(
-        format!("the job store cannot be written: {fault}"),
-        STORE_RETRY_AFTER_S,
-    );
+    let e = ApiError::unavailable(message, STORE_RETRY_AFTER_S);
     let mut body = e.body();
-    body["status"] = json!("store_fault");
+    body["status"] = json!(status);
     let mut res = (StatusCode::SERVICE_UNAVAILABLE, axum::Json(body)).into_response();
     res.headers_mut()
         .insert(header::RETRY_AFTER, HeaderValue::from(STORE_RETRY_AFTER_S));
@@ -856,14 +818,15 @@ async fn get_frame(
     JobId(id): JobId,
     Params(q): Params,
 ) -> Result<Response, ApiError> {
-    let layer = q.get("layer").map_or("image", String::as_str);
-    let Some(layer) = LAYERS.iter().copied().find(|l| *l == layer) else {
+    let layer_name = q.get("layer").map_or("image", String::as_str);
+    let Some(layer) = Layer::parse(layer_name) else {
+        let names: Vec<&str> = Layer::ALL.iter().map(|l| l.as_str()).collect();
         return Err(ApiError::new(
             ErrorCode::InvalidParameter,
             format!(
                 "unknown layer {:?}; use one of {}",
-                clip(layer),
-                LAYERS.join(", ")
+                clip(layer_name),
+                names.join(", ")
             ),
         )
         .at("layer"));
@@ -879,58 +842,39 @@ async fn get_frame(
             .at("format"))
         }
     };
-    if exr && layer != "image" {
+    if exr && layer != Layer::Image {
         return Err(ApiError::new(
             ErrorCode::InvalidParameter,
             "format=exr is only available for the image layer (the linear HDR radiance)",
         )
         .at("format"));
     }
-    let no_frame = || ApiError::new(ErrorCode::NotFound, format!("job {id} has no frame yet"));
-    let missing_layer = || {
-        ApiError::new(
-            ErrorCode::NotFound,
-            format!("this frame has no {layer} layer"),
-        )
-        .at("layer")
-    };
     let ctype = if exr { "image/x-exr" } else { "image/png" };
     let headers = [
         (header::CONTENT_TYPE, ctype),
         (header::CACHE_CONTROL, "no-store"),
     ];
-    if let Some(live) = st.jobs.live(id) {
-        // Encoded once per frame and shared by every request (`LiveFrame::encoded_blocking`).
-        let lf = live.snapshot().frame.clone().ok_or_else(no_frame)?;
-        drop(live);
-        let layer = layer.to_owned();
-        let bytes = tokio::task::spawn_blocking(move || lf.encoded_blocking(&layer, exr))
-            .await
-            .map_err(|e| ApiError::internal("encoding a frame", &e))?
-            .map_err(|e| ApiError::internal("encoding a frame", &e))?
-            .ok_or_else(missing_layer)?;
-        return Ok((headers, bytes).into_response());
-    }
-    let job = st
-        .jobs
-        .store()
-        .get(id)
-        .await?
-        .ok_or_else(|| ApiError::not_found_job(&id.to_string()))?;
-    if !job.has_frame {
-        return Err(no_frame());
-    }
-    let path = st
-        .jobs
-        .store()
-        .layer_path(id, layer, exr)
-        .ok_or_else(missing_layer)?;
+    let path = match st.jobs.frame(id, layer, exr).await? {
+        FrameLookup::Found(FrameBytes::Memory(bytes)) => {
+            return Ok((headers, bytes).into_response())
+        }
+        FrameLookup::Found(FrameBytes::File(path)) => path,
+        FrameLookup::NotFound => return Err(ApiError::not_found_job(&id.to_string())),
+        FrameLookup::NoFrame => {
+            return Err(ApiError::new(
+                ErrorCode::NotFound,
+                format!("job {id} has no frame yet"),
+            ))
+        }
+        FrameLookup::NoLayer => return Err(missing_layer(layer)),
+        FrameLookup::EncodingFailed(e) => return Err(ApiError::internal("encoding a frame", &e)),
+    };
     // Streamed from the file: a request holds a file handle and a small buffer, never the
     // file (a 4096² EXR is 201 MB; one copy per request let 20 clients that did not read
     // hold 3.8 GB).
     let file = match tokio::fs::File::open(&path).await {
         Ok(f) => f,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer(layer)),
         Err(e) => return Err(ApiError::internal("reading a stored frame", &e)),
     };
     let len = file
@@ -945,6 +889,14 @@ async fn get_frame(
     res.headers_mut()
         .insert(header::CONTENT_LENGTH, HeaderValue::from(len));
     Ok(res)
+}
+
+fn missing_layer(layer: Layer) -> ApiError {
+    ApiError::new(
+        ErrorCode::NotFound,
+        format!("this frame has no {} layer", layer.as_str()),
+    )
+    .at("layer")
 }
 
 /// Read size when streaming a stored file.

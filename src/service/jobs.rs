@@ -11,15 +11,15 @@
 //! [`Snapshot`] (job object + latest frame): the WebSocket streams and `GET .../frame`
 //! read it; slow readers simply see the newest value (no unbounded buffering).
 
+use super::error_code::ErrorCode;
 use super::metrics::Metrics;
-use super::store::{self, JobRecord, JobState, Store, StoreError};
+use super::store::{self, JobError, JobRecord, JobState, Layer, Progress, Store, StoreError};
 use crate::cancel::CancelToken;
 use crate::progressive::eta::{Eta, EtaTracker};
 use crate::progressive::{self, layers, Frame, RenderOptions};
 use crate::scene::{parse_scene, Limits, SceneOrigin};
 use crate::tracer::PathTracer;
 use bytes::Bytes;
-use serde_json::{json, Value};
 use std::collections::{HashMap, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -139,9 +139,9 @@ pub struct LiveFrame {
     pub frame: Frame,
     /// The scene's display exposure, for the `image` layer.
     pub exposure: f32,
-    pub progress: Value,
+    pub progress: Progress,
     /// The layers this frame has (`distance` is absent in reference mode).
-    pub layers: Vec<&'static str>,
+    pub layers: Vec<Layer>,
     /// A std `OnceLock` (not tokio's `OnceCell`) so the worker thread can wait for the
     /// encoding a watcher already started instead of encoding the final frame twice.
     png: std::sync::OnceLock<Result<Bytes, String>>,
@@ -153,19 +153,19 @@ pub struct LiveFrame {
 }
 
 /// The encodings [`LiveFrame::encoded`] caches besides the image PNG: (layer, EXR?).
-const OTHER_ENCODINGS: [(&str, bool); 5] = [
-    ("samples", false),
-    ("distance", false),
-    ("classes", false),
-    ("objects", false),
-    ("image", true),
+const OTHER_ENCODINGS: [(Layer, bool); 5] = [
+    (Layer::Samples, false),
+    (Layer::Distance, false),
+    (Layer::Classes, false),
+    (Layer::Objects, false),
+    (Layer::Image, true),
 ];
 
 impl LiveFrame {
-    fn new(frame: Frame, exposure: f32, progress: Value, metrics: Arc<Metrics>) -> Self {
-        let layers = layers::LAYERS
+    fn new(frame: Frame, exposure: f32, progress: Progress, metrics: Arc<Metrics>) -> Self {
+        let layers = Layer::ALL
             .into_iter()
-            .filter(|l| *l != "distance" || frame.distance.is_some())
+            .filter(|l| *l != Layer::Distance || frame.distance.is_some())
             .collect();
         Self {
             frame,
@@ -195,7 +195,7 @@ impl LiveFrame {
         self.png
             .get_or_init(|| {
                 self.metrics.frames_encoded.fetch_add(1, Ordering::Relaxed);
-                self.encode_layer_blocking("image")?
+                self.encode_layer_blocking(Layer::Image)?
                     .map(Bytes::from)
                     .ok_or_else(|| "no image layer".to_owned())
             })
@@ -203,14 +203,14 @@ impl LiveFrame {
     }
 
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
-    pub fn encode_layer_blocking(&self, layer: &str) -> Result<Option<Vec<u8>>, String> {
-        layers::encode_layer(&self.frame, layer, self.exposure).map_err(|e| e.to_string())
+    pub fn encode_layer_blocking(&self, layer: Layer) -> Result<Option<Vec<u8>>, String> {
+        layers::encode_layer(&self.frame, layer.as_str(), self.exposure).map_err(|e| e.to_string())
     }
 
     /// One layer as PNG, or the image as EXR, encoded once and shared (`None` if the
     /// frame lacks the layer or the layer is unknown). Blocking.
-    pub fn encoded_blocking(&self, layer: &str, exr: bool) -> Result<Option<Bytes>, String> {
-        if layer == "image" && !exr {
+    pub fn encoded_blocking(&self, layer: Layer, exr: bool) -> Result<Option<Bytes>, String> {
+        if layer == Layer::Image && !exr {
             return self.image_png_blocking().map(Some);
         }
         let Some(k) = OTHER_ENCODINGS.iter().position(|e| *e == (layer, exr)) else {
@@ -285,7 +285,7 @@ impl LiveJob {
 // ---------------------------------------------------------------------------------------
 // Progress
 
-fn progress_json(frame: &Frame, elapsed_ms: f64, eta: Eta) -> Value {
+fn progress_of(frame: &Frame, elapsed_ms: f64, eta: Eta) -> Progress {
     let (low, high, confidence) = match eta {
         Eta::Left {
             low_ms,
@@ -296,25 +296,22 @@ fn progress_json(frame: &Frame, elapsed_ms: f64, eta: Eta) -> Value {
         Eta::Done => (Some(0.0), Some(0.0), Some(1.0)),
         Eta::Unknown | Eta::Finishing => (None, None, None),
     };
-    json!({
-        "iteration": frame.iteration,
-        "pixels_traced": frame.stats.pixels_traced,
-        "pixel_fraction": frame.stats.pixel_fraction,
-        "elapsed_ms": elapsed_ms.round() as u64,
-        "mean_distance": finite_or_null(frame.stats.final_mean_distance),
-        "eta_ms": match eta { Eta::Done => Some(0), _ => eta.ms().map(|v| v.round() as u64) },
-        "eta_low_ms": low.map(|v| v.round() as u64),
-        "eta_high_ms": high.map(|v| v.round() as u64),
-        "eta_confidence": confidence,
-        "finishing": eta == Eta::Finishing,
-    })
-}
-
-fn finite_or_null(v: f64) -> Value {
-    if v.is_finite() {
-        json!(v)
-    } else {
-        Value::Null
+    let round = |v: f64| v.round() as u64;
+    let d = frame.stats.final_mean_distance;
+    Progress {
+        iteration: frame.iteration,
+        pixels_traced: frame.stats.pixels_traced,
+        pixel_fraction: frame.stats.pixel_fraction,
+        elapsed_ms: round(elapsed_ms),
+        mean_distance: d.is_finite().then_some(d),
+        eta_ms: match eta {
+            Eta::Done => Some(0),
+            _ => eta.ms().map(round),
+        },
+        eta_low_ms: low.map(round),
+        eta_high_ms: high.map(round),
+        eta_confidence: confidence,
+        finishing: eta == Eta::Finishing,
     }
 }
 
@@ -336,6 +333,38 @@ pub enum CancelOutcome {
     NotFound,
     AlreadyFinished(JobRecord),
     Accepted(JobRecord),
+}
+
+/// Encoded frame bytes as the jobs API hands them out: a live frame's, shared from
+/// memory, or a stored file, to be streamed (never read whole per request: a 4096² EXR is
+/// 201 MB).
+pub enum FrameBytes {
+    Memory(Bytes),
+    File(std::path::PathBuf),
+}
+
+/// What [`Jobs::frame`] found.
+pub enum FrameLookup {
+    NotFound,
+    /// The job exists but has no frame yet (or ended without one).
+    NoFrame,
+    /// The frame lacks this layer (`distance` in reference mode, a late file not written).
+    NoLayer,
+    EncodingFailed(String),
+    Found(FrameBytes),
+}
+
+/// A finished job's stored final frame: the image file and the layers stored with it.
+pub struct StoredFrame {
+    pub image: std::path::PathBuf,
+    pub layers: Vec<Layer>,
+}
+
+/// What a stream follows ([`Jobs::watch`]).
+pub enum Watch {
+    NotFound,
+    Live(watch::Receiver<Arc<Snapshot>>),
+    Stored(Box<JobRecord>, Option<StoredFrame>),
 }
 
 pub enum DeleteOutcome {
@@ -438,6 +467,9 @@ const WRITE_RETRY: std::time::Duration = std::time::Duration::from_secs(1);
 /// server takes (a 4096² image at 256 spp, `server_limits`) runs for minutes to an hour.
 pub const DEFAULT_JOB_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2 * 3600);
 
+/// How long `/healthz` waits for the database before it says the node cannot reach it.
+const PING_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// Handle to the job machinery (cheap to clone; shared by every request handler).
 #[derive(Clone)]
 pub struct Jobs {
@@ -520,9 +552,24 @@ impl Jobs {
         lock(&self.inner.store_fault).clone()
     }
 
+    /// Jobs in the store by state (for `/metrics`).
+    pub async fn count_by_state(&self) -> Result<Vec<(JobState, i64)>, StoreError> {
+        self.inner.store.count_by_state().await
+    }
+
+    /// Does this node reach its database? (`/healthz`; a database that does not answer
+    /// within [`PING_TIMEOUT`] counts as unreachable.)
+    pub async fn ping_store(&self) -> Result<(), String> {
+        match tokio::time::timeout(PING_TIMEOUT, self.inner.store.ping()).await {
+            Ok(r) => r.map_err(|e| e.to_string()),
+            Err(_) => Err(format!("no answer within {PING_TIMEOUT:?}")),
+        }
+    }
+
+    /// `sqlite` or `postgres`.
     #[must_use]
-    pub fn store(&self) -> &Store {
-        &self.inner.store
+    pub fn store_backend(&self) -> &'static str {
+        self.inner.store.backend()
     }
 
     #[must_use]
@@ -535,9 +582,84 @@ impl Jobs {
         self.inner.queue.len()
     }
 
-    #[must_use]
-    pub fn live(&self, id: Uuid) -> Option<Arc<LiveJob>> {
+    fn live(&self, id: Uuid) -> Option<Arc<LiveJob>> {
         lock(&self.inner.live).get(&id).cloned()
+    }
+
+    /// One layer of a job's latest frame: from memory while the job is live (encoded
+    /// once per frame and shared by every request, `LiveFrame::encoded_blocking`), from
+    /// its stored file once it is finished. The one place that decides "live or stored".
+    pub async fn frame(
+        &self,
+        id: Uuid,
+        layer: Layer,
+        exr: bool,
+    ) -> Result<FrameLookup, StoreError> {
+        if let Some(live) = self.live(id) {
+            let Some(lf) = live.snapshot().frame.clone() else {
+                return Ok(FrameLookup::NoFrame);
+            };
+            drop(live);
+            let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, exr))
+                .await
+                .map_err(|e| e.to_string())
+                .and_then(|r| r);
+            return Ok(match encoded {
+                Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
+                Ok(None) => FrameLookup::NoLayer,
+                Err(e) => FrameLookup::EncodingFailed(e),
+            });
+        }
+        let Some(job) = self.inner.store.get(id).await? else {
+            return Ok(FrameLookup::NotFound);
+        };
+        if !job.has_frame {
+            return Ok(FrameLookup::NoFrame);
+        }
+        let path = self.inner.store.layer_path(id, layer, exr);
+        Ok(match tokio::fs::try_exists(&path).await {
+            Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
+            Ok(false) => FrameLookup::NoLayer,
+            Err(e) => return Err(e.into()),
+        })
+    }
+
+    /// What a stream of job `id` follows: the live snapshots while the job is queued or
+    /// running (and while its late files are written), else the finished record with
+    /// its stored final frame.
+    pub async fn watch(&self, id: Uuid) -> Result<Watch, StoreError> {
+        if let Some(live) = self.live(id) {
+            return Ok(Watch::Live(live.tx.subscribe()));
+        }
+        let Some(job) = self.inner.store.get(id).await? else {
+            return Ok(Watch::NotFound);
+        };
+        let frame = if job.has_frame {
+            self.stored_frame(id).await
+        } else {
+            None
+        };
+        Ok(Watch::Stored(Box::new(job), frame))
+    }
+
+    /// The stored final image of a finished job and the layers stored beside it; `None`
+    /// if its image file is gone.
+    async fn stored_frame(&self, id: Uuid) -> Option<StoredFrame> {
+        let store = &self.inner.store;
+        let image = store.layer_path(id, Layer::Image, false);
+        if !tokio::fs::try_exists(&image).await.unwrap_or(false) {
+            return None;
+        }
+        let mut layers = Vec::new();
+        for l in Layer::ALL {
+            if tokio::fs::try_exists(store.layer_path(id, l, false))
+                .await
+                .unwrap_or(false)
+            {
+                layers.push(l);
+            }
+        }
+        Some(StoredFrame { image, layers })
     }
 
     /// Accepts a validated document: the record is committed before this returns
@@ -753,6 +875,7 @@ fn worker_loop(inner: &Arc<Inner>) {
         let mut job = live.snapshot().job.clone();
         job.state = JobState::Running;
         job.started_at = Some(started);
+        job.attempt += 1;
         live.publish(job.clone(), None);
         tracing::info!(%id, state = "running", "job started");
         inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
@@ -766,7 +889,7 @@ fn worker_loop(inner: &Arc<Inner>) {
 enum Outcome {
     Done(Box<Frame>),
     Cancelled,
-    Failed(Value),
+    Failed(JobError),
 }
 
 fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
@@ -830,7 +953,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             Ok(s) => s,
             Err(e) => {
                 // Accepted earlier, refused now (limits changed across a restart).
-                return Outcome::Failed(json!({"code": "invalid_scene", "message": e.to_string()}));
+                return Outcome::Failed(JobError::new(ErrorCode::InvalidScene, e.to_string()));
             }
         };
         exposure = scene.display.exposure;
@@ -840,7 +963,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         );
         let mut on_frame = |f: &Frame| {
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
-            let progress = progress_json(f, elapsed, eta.update(f, elapsed));
+            let progress = progress_of(f, elapsed, eta.update(f, elapsed));
             inner.metrics.pixels_traced.fetch_add(
                 f.stats.pixels_traced.saturating_sub(last_pixels),
                 Ordering::Relaxed,
@@ -871,9 +994,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     let outcome = outcome.unwrap_or_else(|p| {
         let msg = panic_message(p.as_ref());
         tracing::error!(%id, "render panicked: {msg}");
-        Outcome::Failed(
-            json!({"code": "render_failed", "message": format!("the render failed: {msg}")}),
-        )
+        Outcome::Failed(JobError::new(
+            ErrorCode::RenderFailed,
+            format!("the render failed: {msg}"),
+        ))
     });
     inner
         .metrics
@@ -889,9 +1013,9 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
 
     let (state, stats, error, final_frame) = match outcome {
         Outcome::Done(f) => {
-            let stats = serde_json::to_value(&f.stats).ok();
+            let stats = Some(f.stats.clone());
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
-            let progress = progress_json(&f, elapsed, Eta::Done);
+            let progress = progress_of(&f, elapsed, Eta::Done);
             let lf = match latest.take() {
                 // The callback already saw this final frame: reuse it (and its PNG).
                 Some(l) if l.frame.iteration == f.iteration && l.frame.last => l,
@@ -908,10 +1032,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             if timed_out.load(Ordering::SeqCst) && !live.user_cancelled.load(Ordering::SeqCst) =>
         {
             let limit = inner.job_timeout.as_secs_f64();
-            let error = json!({
-                "code": "timeout",
-                "message": format!("the render ran longer than the server's limit of {limit} s (--job-timeout); its latest frame is kept"),
-            });
+            let error = JobError::new(
+                ErrorCode::Timeout,
+                format!("the render ran longer than the server's limit of {limit} s (--job-timeout); its latest frame is kept"),
+            );
             (JobState::Failed, None, Some(error), latest.take())
         }
         Outcome::Cancelled => {
@@ -1021,7 +1145,7 @@ fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), St
     let files = OTHER_ENCODINGS
         .par_iter()
         .map(|&(layer, exr)| {
-            let name = format!("{layer}.{}", if exr { "exr" } else { "png" });
+            let name = layer.file_name(exr);
             Ok(lf.encoded_blocking(layer, exr)?.map(|b| (name, b)))
         })
         .collect::<Result<Vec<_>, String>>()?;
@@ -1154,13 +1278,13 @@ mod tests {
         assert_eq!(j.state, JobState::Succeeded);
         // Five frames, no watcher: only the final one was encoded, for its file.
         assert_eq!(metrics.frames_encoded.load(Ordering::Relaxed), 1);
-        let store = jobs.store();
-        for layer in store::LAYER_FILES {
-            let png = std::fs::read(store.layer_path(id, layer, false).unwrap()).unwrap();
+        let store = &jobs.inner.store;
+        for layer in Layer::ALL {
+            let png = std::fs::read(store.layer_path(id, layer, false)).unwrap();
             let img = crate::raster::decode_image(&png).unwrap();
-            assert_eq!((img.width(), img.height()), (8, 6), "{layer}");
+            assert_eq!((img.width(), img.height()), (8, 6), "{layer:?}");
         }
-        let exr = std::fs::read(store.layer_path(id, "image", true).unwrap()).unwrap();
+        let exr = std::fs::read(store.layer_path(id, Layer::Image, true)).unwrap();
         let img = crate::raster::decode_image(&exr).unwrap();
         // The last frame's linear values (k = 4: blue 1.0), not an earlier frame's.
         assert_eq!(img.get(7, 5).z, 1.0);
@@ -1196,11 +1320,11 @@ mod tests {
         let rec = other.get(id).await.unwrap().unwrap();
         assert_eq!(rec.state, JobState::Succeeded);
         assert!(rec.has_frame && rec.stats.is_some() && rec.finished_at.is_some());
-        let png = std::fs::read(other.layer_path(id, "image", false).unwrap()).unwrap();
+        let png = std::fs::read(other.layer_path(id, Layer::Image, false)).unwrap();
         let img = crate::raster::decode_image(&png).unwrap();
         assert_eq!((img.width(), img.height()), (8, 6));
-        assert!(!other.layer_path(id, "samples", false).unwrap().exists());
-        assert!(!other.layer_path(id, "image", true).unwrap().exists());
+        assert!(!other.layer_path(id, Layer::Samples, false).exists());
+        assert!(!other.layer_path(id, Layer::Image, true).exists());
         // A restart over it keeps the job finished (it is not run again).
         assert!(other.recover().await.unwrap().is_empty());
         other.close().await;
@@ -1255,7 +1379,7 @@ mod tests {
             DeleteOutcome::Deleted
         ));
         assert!(
-            !jobs.store().job_dir(id).exists(),
+            !jobs.inner.store.job_dir(id).exists(),
             "nothing written after DELETE"
         );
         server.abort();
@@ -1292,16 +1416,10 @@ mod tests {
             // The second job also ran: the worker survived the first panic.
             assert_eq!(j.state, JobState::Failed);
             let err = j.error.unwrap();
-            assert_eq!(err["code"], "render_failed");
-            assert!(
-                err["message"]
-                    .as_str()
-                    .unwrap()
-                    .contains("boom in the tracer"),
-                "{err}"
-            );
+            assert_eq!(err.code, ErrorCode::RenderFailed);
+            assert!(err.message.contains("boom in the tracer"), "{err:?}");
             assert!(j.has_frame && j.finished_at.is_some());
-            let png = std::fs::read(jobs.store().layer_path(id, "image", false).unwrap()).unwrap();
+            let png = std::fs::read(jobs.inner.store.layer_path(id, Layer::Image, false)).unwrap();
             assert_eq!(crate::raster::decode_image(&png).unwrap().width(), 4);
         }
         jobs.shutdown().await;

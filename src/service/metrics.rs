@@ -51,7 +51,7 @@ impl Drop for WatcherGuard {
 /// The exposition text (format 0.0.4).
 pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
     let mut out = String::new();
-    let counts = jobs.store().count_by_state().await.unwrap_or_default();
+    let counts = jobs.count_by_state().await.unwrap_or_default();
     let _ = writeln!(out, "# HELP glimpse_jobs Jobs in the store, by state.");
     let _ = writeln!(out, "# TYPE glimpse_jobs gauge");
     for st in JobState::ALL {

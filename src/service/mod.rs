@@ -6,12 +6,14 @@
 //! - [`http`]: router, limit layers, extractors, `ApiError` (the only type that knows
 //!   status codes);
 //! - [`jobs`]: bounded queue, worker threads, cancellation, state transitions, ETA;
-//! - [`store`]: SQLite (sqlx, WAL) job records and the final images beside them;
+//! - [`store`]: job records on SQLite or PostgreSQL (sqlx), claims and leases, and the
+//!   final images beside them; [`error_code`]: the stable error codes;
 //! - [`ws`]: the stream protocol over a `watch` channel per job;
 //! - [`metrics`]: Prometheus text; [`auth`]: the optional bearer token;
 //! - [`examples`]: the bundled scenes; [`viewer`]: the browser page.
 
 pub mod auth;
+pub mod error_code;
 pub mod examples;
 pub mod http;
 pub mod jobs;
@@ -30,7 +32,10 @@ use std::time::Duration;
 /// Everything the service needs, parsed once in `main`.
 #[derive(Clone, Debug)]
 pub struct Config {
+    /// The image files of finished jobs (and, without `database`, the SQLite store).
     pub data_dir: PathBuf,
+    /// `--database`: SQLite in `data_dir` when absent.
+    pub database: Option<store::Database>,
     /// Concurrent renders (each render already uses every core through rayon, so more
     /// than one or two workers only helps many small jobs).
     pub workers: usize,
@@ -70,6 +75,7 @@ impl Config {
     pub fn new(data_dir: impl Into<PathBuf>) -> Self {
         Self {
             data_dir: data_dir.into(),
+            database: None,
             workers: 1,
             token: None,
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
@@ -141,12 +147,18 @@ pub async fn run(
     config: Config,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    let store = store::Store::open(&config.data_dir).await.map_err(|e| {
-        anyhow::anyhow!(
-            "cannot open the job store in {}: {e}",
-            config.data_dir.display()
-        )
-    })?;
+    let database = config
+        .database
+        .clone()
+        .unwrap_or_else(|| store::Database::Sqlite(config.data_dir.clone()));
+    // With `sqlite://DIR` the images live beside that database, as with `--data DIR`.
+    let files_dir = match &database {
+        store::Database::Sqlite(dir) => dir.clone(),
+        store::Database::Postgres(_) => config.data_dir.clone(),
+    };
+    let store = store::Store::connect(&database, &files_dir)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
     let metrics = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,

@@ -23,9 +23,9 @@
 //! rather than through axum's `WebSocketUpgrade`, whose messages cannot be fragmented.
 
 use super::http::{ApiError, AppState, ErrorCode, JobId};
-use super::jobs::{LiveFrame, Snapshot};
+use super::jobs::{LiveFrame, Snapshot, StoredFrame, Watch};
 use super::metrics::WatcherGuard;
-use super::store::{JobRecord, JobState};
+use super::store::{JobError, JobRecord, JobState};
 use axum::extract::{Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::Response;
@@ -219,12 +219,8 @@ fn final_message(job: &JobRecord) -> Value {
         let error = job
             .error
             .clone()
-            .unwrap_or_else(|| json!({"code": "render_failed", "message": "the render failed"}));
-        let error = json!({
-            "code": error.get("code").cloned().unwrap_or(json!("render_failed")),
-            "message": error.get("message").cloned().unwrap_or(json!("the render failed")),
-            "path": "",
-        });
+            .unwrap_or_else(|| JobError::new(ErrorCode::RenderFailed, "the render failed"));
+        let error = json!({"code": error.code, "message": error.message, "path": ""});
         json!({"type": "error", "error": error, "job": job})
     } else {
         json!({"type": "done", "job": job})
@@ -232,66 +228,18 @@ fn final_message(job: &JobRecord) -> Value {
 }
 
 async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> {
-    if let Some(live) = st.jobs.live(id) {
-        let mut wrx = live.tx.subscribe();
-        drop(live); // do not keep the job alive; the receiver is enough
-        let snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
-        send_json(tx, &json!({"type": "state", "job": snap.job})).await?;
-        let mut snap = Some(snap);
-        // The frame last sent, by identity only: holding it would keep its buffers alive
-        // while this client is slow.
-        let mut sent: Weak<LiveFrame> = Weak::new();
-        while let Some(s) = snap.take() {
-            let finished = s.job.state.is_finished().then(|| final_message(&s.job));
-            let fresh = s
-                .frame
-                .clone()
-                .filter(|f| !Weak::ptr_eq(&sent, &Arc::downgrade(f)));
-            drop(s);
-            if let Some(f) = fresh {
-                sent = Arc::downgrade(&f);
-                send_frame(tx, f).await?;
-            }
-            if let Some(done) = finished {
-                send_json(tx, &done).await?;
-                return Ok(());
-            }
-            if wrx.changed().await.is_err() {
-                // The job left the live set without a final snapshot (requeued on
-                // shutdown, or deleted): say where it stands and stop.
-                break;
-            }
-            snap = Some(wrx.borrow_and_update().clone());
+    let (job, frame) = match st.jobs.watch(id).await.map_err(other)? {
+        Watch::Live(wrx) => return follow(tx, st, id, wrx).await,
+        Watch::Stored(job, frame) => (job, frame),
+        Watch::NotFound => {
+            // Unknown after a race with DELETE.
+            let e = ApiError::not_found_job(&id.to_string());
+            return send_json(tx, &json!({"type": "error", "error": e.body()["error"]})).await;
         }
-        if let Some(job) = st
-            .jobs
-            .store()
-            .get(id)
-            .await
-            .map_err(|e| StreamError::Other(e.to_string()))?
-        {
-            if job.state.is_finished() {
-                send_json(tx, &final_message(&job)).await?;
-            } else {
-                send_json(tx, &json!({"type": "state", "job": job})).await?;
-            }
-        }
-        return Ok(());
-    }
-    // Not live: finished (or unknown after a race with DELETE).
-    let Some(job) = st
-        .jobs
-        .store()
-        .get(id)
-        .await
-        .map_err(|e| StreamError::Other(e.to_string()))?
-    else {
-        let e = ApiError::not_found_job(&id.to_string());
-        return send_json(tx, &json!({"type": "error", "error": e.body()["error"]})).await;
     };
     send_json(tx, &json!({"type": "state", "job": job})).await?;
-    if job.has_frame {
-        send_stored_frame(tx, st, &job).await?;
+    if let Some(frame) = frame {
+        send_stored_frame(tx, &job, frame).await?;
     }
     if job.state.is_finished() {
         send_json(tx, &final_message(&job)).await?;
@@ -299,36 +247,71 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
     Ok(())
 }
 
+fn other(e: impl std::fmt::Display) -> StreamError {
+    StreamError::Other(e.to_string())
+}
+
+/// A live job's snapshots, newest first, until it finishes (or leaves the live set).
+async fn follow(
+    tx: &mut Tx,
+    st: &AppState,
+    id: Uuid,
+    mut wrx: tokio::sync::watch::Receiver<Arc<Snapshot>>,
+) -> Result<(), StreamError> {
+    let snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
+    send_json(tx, &json!({"type": "state", "job": snap.job})).await?;
+    let mut snap = Some(snap);
+    // The frame last sent, by identity only: holding it would keep its buffers alive
+    // while this client is slow.
+    let mut sent: Weak<LiveFrame> = Weak::new();
+    while let Some(s) = snap.take() {
+        let finished = s.job.state.is_finished().then(|| final_message(&s.job));
+        let fresh = s
+            .frame
+            .clone()
+            .filter(|f| !Weak::ptr_eq(&sent, &Arc::downgrade(f)));
+        drop(s);
+        if let Some(f) = fresh {
+            sent = Arc::downgrade(&f);
+            send_frame(tx, f).await?;
+        }
+        if let Some(done) = finished {
+            send_json(tx, &done).await?;
+            return Ok(());
+        }
+        if wrx.changed().await.is_err() {
+            // The job left the live set without a final snapshot (requeued on
+            // shutdown, or deleted): say where it stands and stop.
+            break;
+        }
+        snap = Some(wrx.borrow_and_update().clone());
+    }
+    if let Some(job) = st.jobs.get(id).await.map_err(other)? {
+        if job.state.is_finished() {
+            send_json(tx, &final_message(&job)).await?;
+        } else {
+            send_json(tx, &json!({"type": "state", "job": job})).await?;
+        }
+    }
+    Ok(())
+}
+
 /// The stored final frame of a finished job, read from its file fragment by fragment
 /// (never the whole file in memory per watcher). Nothing if the file is gone.
-async fn send_stored_frame(tx: &mut Tx, st: &AppState, job: &JobRecord) -> Result<(), StreamError> {
+async fn send_stored_frame(
+    tx: &mut Tx,
+    job: &JobRecord,
+    frame: StoredFrame,
+) -> Result<(), StreamError> {
     use tokio::io::AsyncReadExt;
-    let store = st.jobs.store();
-    let Some(path) = store.layer_path(job.id, "image", false) else {
-        return Ok(());
-    };
-    let Ok(mut file) = tokio::fs::File::open(&path).await else {
+    let Ok(mut file) = tokio::fs::File::open(&frame.image).await else {
         return Ok(());
     };
     let len = file.metadata().await.map(|m| m.len()).unwrap_or(0);
-    let iteration = job
-        .progress
-        .as_ref()
-        .and_then(|p| p.get("iteration"))
-        .cloned()
-        .unwrap_or(json!(0));
-    let layers: Vec<&str> = super::store::LAYER_FILES
-        .iter()
-        .copied()
-        .filter(|l| {
-            store
-                .layer_path(job.id, l, false)
-                .is_some_and(|p| p.exists())
-        })
-        .collect();
+    let iteration = job.progress.as_ref().map_or(0, |p| p.iteration);
     send_json(
         tx,
-        &json!({"type": "frame", "iteration": iteration, "progress": job.progress, "layers": layers}),
+        &json!({"type": "frame", "iteration": iteration, "progress": job.progress, "layers": frame.layers}),
     )
     .await?;
     // Fragments of exactly the length the file had: a message's size is fixed once its

@@ -62,6 +62,17 @@ pub async fn spawn(
     cmd.args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
         .arg(data)
         .args(extra)
+        .args(
+            test_database(data)
+                .await
+                .map(|db| match db {
+                    glimpse::service::store::Database::Postgres(url) => {
+                        vec!["--database".to_owned(), url]
+                    }
+                    glimpse::service::store::Database::Sqlite(_) => Vec::new(),
+                })
+                .unwrap_or_default(),
+        )
         .env("RUST_LOG", if log.is_some() { "info" } else { "warn" })
         .env_remove("GLIMPSE_LOG_FORMAT")
         .env_remove("GLIMPSE_TOKEN")
@@ -208,3 +219,62 @@ pub const STATS_FIELDS: [&str; 11] = [
     "triangulate_ms",
     "final_mean_distance",
 ];
+
+/// The PostgreSQL server the tests use: `GLIMPSE_TEST_DATABASE_URL`, or else the
+/// throwaway one `scripts/pg.sh` starts for this checkout (started here if it is not
+/// running: no test is skipped for want of a database).
+pub fn pg_server_url() -> String {
+    if let Ok(url) = std::env::var("GLIMPSE_TEST_DATABASE_URL") {
+        if !url.trim().is_empty() {
+            return url;
+        }
+    }
+    let out = Command::new("bash")
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/pg.sh"))
+        .arg("ensure")
+        .stderr(Stdio::inherit())
+        .output()
+        .expect("cannot run scripts/pg.sh");
+    assert!(out.status.success(), "scripts/pg.sh ensure failed");
+    String::from_utf8(out.stdout).unwrap().trim().to_owned()
+}
+
+/// A new, empty database on [`pg_server_url`]'s server; its URL.
+pub async fn fresh_pg_database() -> String {
+    use sqlx::Connection;
+    let server = pg_server_url();
+    let name = format!("glimpse_test_{}", uuid::Uuid::now_v7().simple());
+    let mut conn = sqlx::PgConnection::connect(&server)
+        .await
+        .unwrap_or_else(|e| panic!("cannot reach the test database server: {e}"));
+    sqlx::query(&format!("CREATE DATABASE {name}"))
+        .execute(&mut conn)
+        .await
+        .unwrap();
+    let (base, query) = server.split_once('?').unwrap_or((&server, ""));
+    let root = base.rsplit_once('/').map_or(base, |(r, _)| r);
+    if query.is_empty() {
+        format!("{root}/{name}")
+    } else {
+        format!("{root}/{name}?{query}")
+    }
+}
+
+/// The store the in-process service tests run on: SQLite in their data folder (the
+/// default), or with `GLIMPSE_TEST_BACKEND=postgres` a database of its own on the test
+/// server, kept for that folder (a restart on the same folder finds the same jobs).
+pub async fn test_database(dir: &Path) -> Option<glimpse::service::store::Database> {
+    if std::env::var("GLIMPSE_TEST_BACKEND").as_deref() != Ok("postgres") {
+        return None;
+    }
+    let marker = dir.join("test-database-url");
+    let url = match std::fs::read_to_string(&marker) {
+        Ok(url) => url,
+        Err(_) => {
+            let url = fresh_pg_database().await;
+            std::fs::write(&marker, &url).unwrap();
+            url
+        }
+    };
+    Some(glimpse::service::store::Database::Postgres(url))
+}

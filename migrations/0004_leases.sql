@@ -1,0 +1,9 @@
+-- Leases (shared/spec/cluster.md): a running job belongs to the worker holding its lease.
+-- worker: the node name that holds (or last held) the job;
+-- lease_token: the attempt's token; every write of that worker names it, so a worker
+--   presumed dead (its lease expired and the job went elsewhere) can no longer write;
+-- lease_expires_at: milliseconds since the Unix epoch on the database's clock.
+-- Numbered 0004 so that another branch's 0003 can land beside it.
+ALTER TABLE jobs ADD COLUMN worker TEXT;
+ALTER TABLE jobs ADD COLUMN lease_token TEXT;
+ALTER TABLE jobs ADD COLUMN lease_expires_at INTEGER;

@@ -1,0 +1,64 @@
+//! The stable machine-readable error codes of service-api.md "Errors", shared by the
+//! HTTP answers (`http::ApiError`) and the `error` of a failed job (`store::JobError`).
+
+use axum::http::StatusCode;
+use serde::{Deserialize, Serialize};
+
+/// The stable machine-readable error codes of service-api.md "Errors".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    InvalidJson,
+    InvalidScene,
+    InvalidParameter,
+    TooLarge,
+    NotFound,
+    MethodNotAllowed,
+    Conflict,
+    QueueFull,
+    Unauthorized,
+    Unavailable,
+    /// The request (headers aside) was not received and answered within
+    /// [`REQUEST_DEADLINE`]: a client trickling its body.
+    RequestTimeout,
+    /// A body that is not a scene document's or an import's type, or that is encoded.
+    UnsupportedMediaType,
+    /// `Host` names another server (DNS rebinding), without a token.
+    MisdirectedRequest,
+    /// A request from a page of another origin, without a token.
+    Forbidden,
+    Internal,
+    // The codes of a failed job's `error` (never an HTTP answer's).
+    /// The render itself failed (a panic inside it, caught at the job's boundary).
+    RenderFailed,
+    /// The render ran longer than `--job-timeout`.
+    Timeout,
+    /// Every allowed attempt ended with its worker gone (killed, crashed, or its lease
+    /// lost): the job is not run again.
+    Poison,
+}
+
+impl ErrorCode {
+    #[must_use]
+    pub fn status(self) -> StatusCode {
+        match self {
+            ErrorCode::InvalidJson | ErrorCode::InvalidParameter => StatusCode::BAD_REQUEST,
+            ErrorCode::InvalidScene => StatusCode::UNPROCESSABLE_ENTITY,
+            ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            ErrorCode::NotFound => StatusCode::NOT_FOUND,
+            ErrorCode::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
+            ErrorCode::Conflict => StatusCode::CONFLICT,
+            ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
+            ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
+            ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::RequestTimeout => StatusCode::REQUEST_TIMEOUT,
+            ErrorCode::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            ErrorCode::MisdirectedRequest => StatusCode::MISDIRECTED_REQUEST,
+            ErrorCode::Forbidden => StatusCode::FORBIDDEN,
+            ErrorCode::Internal
+            | ErrorCode::RenderFailed
+            | ErrorCode::Timeout
+            | ErrorCode::Poison => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+}

@@ -1,0 +1,372 @@
+//! The store's contract, on both backends (shared/spec/cluster.md): every test runs the
+//! same steps on SQLite (a temporary folder) and on PostgreSQL (a fresh database on the
+//! test server, `common::pg_server_url`): records, exclusive claims, leases and their
+//! tokens, the reaper.
+
+mod common;
+
+use glimpse::service::error_code::ErrorCode;
+use glimpse::service::store::{
+    Beat, Database, JobError, JobState, Progress, Store, MAX_ATTEMPTS, MAX_LEASE_ATTEMPTS,
+};
+use std::time::Duration;
+use uuid::Uuid;
+
+/// The two stores, each with the folder that holds it (or its files).
+async fn stores() -> Vec<(Store, tempfile::TempDir)> {
+    let a = tempfile::tempdir().unwrap();
+    let sqlite = Store::open(a.path()).await.unwrap();
+    let b = tempfile::tempdir().unwrap();
+    let pg = Store::connect(
+        &Database::Postgres(common::fresh_pg_database().await),
+        b.path(),
+    )
+    .await
+    .unwrap();
+    vec![(sqlite, a), (pg, b)]
+}
+
+async fn insert(store: &Store, name: &str) -> Uuid {
+    let id = Uuid::now_v7();
+    store.insert(id, name, "{}").await.unwrap();
+    id
+}
+
+fn progress(iteration: u32) -> Progress {
+    Progress {
+        iteration,
+        pixels_traced: 1234,
+        pixel_fraction: 0.25,
+        elapsed_ms: 99,
+        mean_distance: Some(0.5),
+        eta_ms: None,
+        eta_confidence: None,
+    }
+}
+
+const LEASE: Duration = Duration::from_secs(30);
+
+#[tokio::test]
+async fn records_are_typed_and_listed_newest_first() {
+    for (store, _dir) in stores().await {
+        let b = store.backend();
+        let ids = [
+            insert(&store, "a").await,
+            insert(&store, "b").await,
+            insert(&store, "c").await,
+        ];
+        let list = store.list(None, 2).await.unwrap();
+        let names: Vec<_> = list.iter().map(|j| j.name.as_str()).collect();
+        assert_eq!(names, ["c", "b"], "{b}");
+        let claim = store.claim("w1", LEASE).await.unwrap().unwrap();
+        assert_eq!(claim.id, ids[0], "{b}: the oldest job is claimed first");
+        let error = JobError::new(ErrorCode::Timeout, "too long");
+        let done = store
+            .finish_leased(
+                claim.id,
+                claim.token,
+                JobState::Failed,
+                Some(&progress(3)),
+                None,
+                Some(&error),
+                true,
+            )
+            .await
+            .unwrap();
+        assert!(done.is_some(), "{b}");
+        let j = store.get(claim.id).await.unwrap().unwrap();
+        assert_eq!(j.state, JobState::Failed, "{b}");
+        assert_eq!(j.progress, Some(progress(3)), "{b}");
+        assert_eq!(j.error, Some(error), "{b}");
+        assert_eq!((j.attempt, j.worker.as_deref()), (1, Some("w1")), "{b}");
+        assert!(j.has_frame && j.finished_at.is_some(), "{b}");
+        let counts = store.count_by_state().await.unwrap();
+        assert!(counts.contains(&(JobState::Queued, 2)), "{b}: {counts:?}");
+        assert!(counts.contains(&(JobState::Failed, 1)), "{b}: {counts:?}");
+        let failed = store.list(Some(JobState::Failed), 10).await.unwrap();
+        assert_eq!(failed.len(), 1, "{b}");
+        assert!(store.delete_finished(claim.id).await.unwrap(), "{b}");
+        assert!(store.get(claim.id).await.unwrap().is_none(), "{b}");
+        assert_eq!(store.queued_count().await.unwrap(), 2, "{b}");
+        store.ping().await.unwrap();
+    }
+}
+
+#[tokio::test]
+async fn concurrent_claims_take_each_job_once() {
+    for (store, _dir) in stores().await {
+        let b = store.backend();
+        let mut ids = Vec::new();
+        for k in 0..5 {
+            ids.push(insert(&store, &format!("j{k}")).await);
+        }
+        // 12 claimers race for 5 jobs: each job goes to exactly one of them.
+        let claims = futures_util::future::join_all((0..12).map(|k| {
+            let store = store.clone();
+            async move { store.claim(&format!("w{k}"), LEASE).await.unwrap() }
+        }))
+        .await;
+        let mut got: Vec<Uuid> = claims.iter().flatten().map(|c| c.id).collect();
+        got.sort();
+        assert_eq!(got, ids, "{b}");
+        assert!(store.claim("late", LEASE).await.unwrap().is_none(), "{b}");
+    }
+}
+
+#[tokio::test]
+async fn a_write_with_a_stale_attempt_token_is_refused() {
+    for (store, _dir) in stores().await {
+        let b = store.backend();
+        let id = insert(&store, "contested").await;
+        let first = store
+            .claim("worker-a", Duration::from_millis(50))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            store
+                .heartbeat(id, first.token, Duration::from_millis(50), None)
+                .await
+                .unwrap(),
+            Beat::Held {
+                cancel_requested: false
+            },
+            "{b}"
+        );
+        // worker-a stops beating (killed, or cut off): its lease expires, the reaper puts
+        // the job back and worker-b takes it as attempt 2.
+        tokio::time::sleep(Duration::from_millis(120)).await;
+        let reaped = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
+        assert_eq!(reaped.requeued, 1, "{b}");
+        let second = store.claim("worker-b", LEASE).await.unwrap().unwrap();
+        assert_eq!((second.id, second.attempt), (id, 2), "{b}");
+        // worker-a comes back: every write it tries is refused and changes nothing.
+        let late = store
+            .heartbeat(id, first.token, LEASE, Some(&progress(9)))
+            .await
+            .unwrap();
+        assert_eq!(late, Beat::Lost, "{b}");
+        let finished = store
+            .finish_leased(
+                id,
+                first.token,
+                JobState::Succeeded,
+                Some(&progress(9)),
+                None,
+                None,
+                true,
+            )
+            .await
+            .unwrap();
+        assert!(finished.is_none(), "{b}: a stale token finished the job");
+        assert!(!store.release(id, first.token).await.unwrap(), "{b}");
+        let j = store.get(id).await.unwrap().unwrap();
+        assert_eq!(j.state, JobState::Running, "{b}");
+        assert_eq!(
+            (j.attempt, j.worker.as_deref()),
+            (2, Some("worker-b")),
+            "{b}"
+        );
+        assert_eq!(j.progress, None, "{b}: the stale progress was written");
+        // The holder's writes go through.
+        let beat = store
+            .heartbeat(id, second.token, LEASE, Some(&progress(1)))
+            .await
+            .unwrap();
+        assert_eq!(
+            beat,
+            Beat::Held {
+                cancel_requested: false
+            },
+            "{b}"
+        );
+        assert_eq!(
+            store.get(id).await.unwrap().unwrap().progress,
+            Some(progress(1))
+        );
+        assert!(store.request_cancel(id).await.unwrap(), "{b}");
+        let beat = store
+            .heartbeat(id, second.token, LEASE, None)
+            .await
+            .unwrap();
+        assert_eq!(
+            beat,
+            Beat::Held {
+                cancel_requested: true
+            },
+            "{b}: the cancel reaches the worker"
+        );
+        let done = store
+            .finish_leased(
+                id,
+                second.token,
+                JobState::Cancelled,
+                None,
+                None,
+                None,
+                false,
+            )
+            .await
+            .unwrap();
+        assert!(done.is_some(), "{b}");
+    }
+}
+
+#[tokio::test]
+async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
+    for (store, _dir) in stores().await {
+        let b = store.backend();
+        let id = insert(&store, "poison").await;
+        let short = Duration::from_millis(30);
+        for attempt in 1..=MAX_LEASE_ATTEMPTS {
+            let c = store.claim("doomed", short).await.unwrap().unwrap();
+            assert_eq!((c.id, c.attempt), (id, attempt), "{b}");
+            tokio::time::sleep(Duration::from_millis(80)).await;
+            let r = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
+            let again = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
+            assert_eq!(
+                again,
+                Default::default(),
+                "{b}: a second pass changed something"
+            );
+            if attempt < MAX_LEASE_ATTEMPTS {
+                assert_eq!((r.requeued, r.failed), (1, 0), "{b}");
+            } else {
+                assert_eq!((r.requeued, r.failed), (0, 1), "{b}");
+            }
+        }
+        let j = store.get(id).await.unwrap().unwrap();
+        assert_eq!(j.state, JobState::Failed, "{b}");
+        let e = j.error.unwrap();
+        assert_eq!(e.code, ErrorCode::Poison, "{b}");
+        assert!(e.message.contains("3 attempts"), "{b}: {}", e.message);
+        assert!(store.claim("late", short).await.unwrap().is_none(), "{b}");
+        // A live lease is never reaped; an expired one with a cancel asked ends cancelled.
+        let live = insert(&store, "live").await;
+        let c = store.claim("alive", LEASE).await.unwrap().unwrap();
+        assert_eq!(
+            store.reap(MAX_LEASE_ATTEMPTS).await.unwrap(),
+            Default::default(),
+            "{b}"
+        );
+        assert_eq!(
+            store.get(live).await.unwrap().unwrap().state,
+            JobState::Running
+        );
+        let gone = insert(&store, "cancelled while its worker died").await;
+        let c2 = store.claim("dies", short).await.unwrap().unwrap();
+        assert_eq!(c2.id, gone, "{b}");
+        assert!(store.request_cancel(gone).await.unwrap());
+        tokio::time::sleep(Duration::from_millis(80)).await;
+        let r = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
+        assert_eq!(r.cancelled, 1, "{b}");
+        assert_eq!(
+            store.get(gone).await.unwrap().unwrap().state,
+            JobState::Cancelled
+        );
+        drop(c);
+    }
+}
+
+#[tokio::test]
+async fn single_node_recovery_is_the_same_on_both_backends() {
+    for (store, _dir) in stores().await {
+        let b = store.backend();
+        let id = insert(&store, "crashes the server").await;
+        for start in 1..=MAX_ATTEMPTS {
+            assert_eq!(store.recover().await.unwrap(), [id], "{b}");
+            assert!(store
+                .mark_running_at(id, "2026-01-01T00:00:00.000Z")
+                .await
+                .unwrap());
+            let j = store.get(id).await.unwrap().unwrap();
+            assert_eq!(j.attempt, start, "{b}");
+        }
+        // Found running at the start-up after its second start: a poison job.
+        assert!(store.recover().await.unwrap().is_empty(), "{b}");
+        let j = store.get(id).await.unwrap().unwrap();
+        assert_eq!(j.state, JobState::Failed, "{b}");
+        assert_eq!(j.error.unwrap().code, ErrorCode::Poison, "{b}");
+    }
+}
+
+#[tokio::test]
+async fn a_postgres_database_of_another_program_is_refused() {
+    use sqlx::Connection;
+    let url = common::fresh_pg_database().await;
+    let mut c = sqlx::PgConnection::connect(&url).await.unwrap();
+    sqlx::query("CREATE TABLE invoices (n INT)")
+        .execute(&mut c)
+        .await
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let err = Store::connect(&Database::Postgres(url), dir.path())
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("not a Glimpse job store") && err.contains("invoices"),
+        "{err}"
+    );
+}
+
+#[tokio::test]
+async fn healthz_says_whether_the_node_reaches_its_database() {
+    use sqlx::Connection;
+    let url = common::fresh_pg_database().await;
+    let name = url.rsplit('/').next().unwrap().to_owned();
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = glimpse::service::Config::new(dir.path());
+    config.database = Some(Database::Postgres(url));
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let health = format!("http://{}/healthz", listener.local_addr().unwrap());
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(glimpse::service::run(listener, config, async {
+        let _ = stopped.await;
+    }));
+    let c = reqwest::Client::new();
+    let get = || async {
+        let r = c.get(&health).send().await.unwrap();
+        (
+            r.status().as_u16(),
+            r.json::<serde_json::Value>().await.unwrap(),
+        )
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while c.get(&health).send().await.is_err() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the node did not come up"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let (status, body) = get().await;
+    assert_eq!(
+        (status, &body["database"]),
+        (200, &serde_json::json!("postgres"))
+    );
+    // The database goes away under the node (its connections cut): 503, saying so.
+    let mut admin = sqlx::PgConnection::connect(&common::pg_server_url())
+        .await
+        .unwrap();
+    sqlx::query(&format!("DROP DATABASE {name} WITH (FORCE)"))
+        .execute(&mut admin)
+        .await
+        .unwrap();
+    let (status, body) = get().await;
+    assert_eq!(status, 503, "{body}");
+    assert_eq!(body["status"], "database_unreachable", "{body}");
+    assert!(body["error"]["message"]
+        .as_str()
+        .unwrap()
+        .contains("cannot reach"));
+    // Back: healthy again without a restart.
+    sqlx::query(&format!("CREATE DATABASE {name}"))
+        .execute(&mut admin)
+        .await
+        .unwrap();
+    let (status, body) = get().await;
+    assert_eq!(status, 200, "{body}");
+    let _ = stop.send(());
+    let _ = tokio::time::timeout(Duration::from_secs(15), server).await;
+}
