@@ -1,8 +1,7 @@
 //! Cooperative cancellation shared by every long computation.
 //!
 //! Renders run on rayon threads and cannot be aborted from outside; they poll a
-//! [`CancelToken`] between batches of pixels (issue #5: "a token reaches the progressive
-//! loop and is checked between batches of pixels").
+//! [`CancelToken`] between batches of pixels, so a cancel ends a render within one batch.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

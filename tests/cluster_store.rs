@@ -40,7 +40,10 @@ fn progress(iteration: u32) -> Progress {
         elapsed_ms: 99,
         mean_distance: Some(0.5),
         eta_ms: None,
+        eta_low_ms: None,
+        eta_high_ms: None,
         eta_confidence: None,
+        finishing: false,
     }
 }
 

@@ -110,7 +110,9 @@ async fn a_job_that_took_the_server_down_twice_is_failed_as_poison() {
 async fn a_render_over_the_job_timeout_fails_and_keeps_its_frame() {
     let dir = tempfile::tempdir().unwrap();
     let (s, _p) = Srv::start(dir.path(), &["--job-timeout", "8"], None).await;
-    let scene = common::sphere_scene("slow", 256, 256, "progressive", 2048, 3);
+    // A few seconds to the first frame and ~25 s to the end in the test profile: well
+    // past the 8 s limit, whatever share of the pixels the loop decides to trace.
+    let scene = common::sphere_scene("slow", 384, 384, "progressive", 4096, 3);
     let id = submit(&s.c, &s.base, &scene).await;
     let t = Instant::now();
     let j = s

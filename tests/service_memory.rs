@@ -1,4 +1,4 @@
-//! Memory held by clients that do not read (issue 14): the real binary, a 4096² job, 200
+//! Memory held by clients that do not read: the real binary, a 4096² job, 200
 //! clients that ask for its EXR or PNG and never read, and 256 stream watchers that never
 //! read. The server's resident memory may grow by at most [`GROWTH_LIMIT_KIB`] meanwhile,
 //! a client that reads still gets the whole image, and the stalled connections are cut
@@ -82,7 +82,9 @@ async fn clients_that_never_read_hold_little_and_are_cut() {
         assert!(Instant::now() < deadline, "no EXR");
         tokio::time::sleep(Duration::from_millis(100)).await;
     };
-    assert!(exr_len > 190_000_000, "{exr_len}");
+    // Lossless ZIP leaves ~76 MB of a noisy 4096² float image: a copy per waiting client
+    // would exceed the bound below by the fourth client.
+    assert!(exr_len > 60_000_000, "{exr_len}");
     tokio::time::sleep(Duration::from_millis(500)).await;
     let fds_before = open_fds(pid);
     let rss_before = proc_kib(pid, "VmRSS");

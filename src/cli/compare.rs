@@ -1,4 +1,4 @@
-//! `glimpse compare A B`: the perceptual distance between two images (issue #3).
+//! `glimpse compare A B`: the perceptual distance between two images.
 //!
 //! PNG is read as sRGB, EXR as linear values (`raster::decode_image`); both are shown on a
 //! display of `--display-peak` cd/m² with black level 0.5 cd/m² and exposure 1 (the

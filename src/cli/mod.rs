@@ -93,7 +93,7 @@ pub struct ServeArgs {
     pub log_format: LogFormat,
 }
 
-/// How `main` formats tracing output (issue #6, operations).
+/// How `main` formats tracing output.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LogFormat {
     #[default]

@@ -1,6 +1,6 @@
 //! The adaptive perceptual metric of Albin et al. (2002) as used by F&P04 §3.2: a quad-tree
 //! that evaluates the vision-model distance on a random fraction of the pixels.
-//! Owned by issue #3. Algorithm: vision-model.md §3.2.
+//! Algorithm: vision-model.md §3.2.
 //!
 //! Two corrections to F&P04's wording, argued in vision-model.md §3.2: a cell is a leaf when
 //! its homogeneity h ≥ H (F&P04's text reads the other way round), and h's denominator is
@@ -125,8 +125,8 @@ const MIN_SPLIT: u32 = 8;
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
 ///
-/// Issue #4: bit-identical to [`reference::block_map_reference`] (the issue #3 code; tests
-/// compare them on noisy pairs) but cheaper on progressive frames, where every traced pixel
+/// Bit-identical to [`reference::block_map_reference`] (the plain transcription of §3.2;
+/// tests compare them on noisy pairs) but cheaper on progressive frames, where every traced pixel
 /// is a seed and the tree goes deep. What changed, all without touching the sampling order
 /// or the order samples are summed in:
 /// - a split distributes the parent's samples and unused seeds to its children in one pass
@@ -585,7 +585,7 @@ pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> Di
     }
 }
 
-/// The issue #3 algorithm, the bit-exact reference of [`block_map`] (tests, benches).
+/// §3.2 transcribed plainly, the bit-exact oracle of [`block_map`] (tests, benches).
 #[doc(hidden)]
 pub mod reference;
 

@@ -1,6 +1,6 @@
-//! The quad-tree of vision-model.md §3.2 exactly as issue #3 wrote it, kept as the
-//! reference the optimised [`super::block_map`] must match bit for bit (issue #4: same
-//! map, leaves and pixel count for the same inputs and seed). Tests compare the two;
+//! The quad-tree of vision-model.md §3.2 transcribed plainly, kept as the oracle the
+//! optimised [`super::block_map`] must match bit for bit (same map, leaves and pixel
+//! count for the same inputs and seed). Tests compare the two;
 //! benches/vision.rs times them side by side. Not for production use: it copies every
 //! cell's samples and seeds at each split.
 
@@ -9,7 +9,7 @@ use crate::raster::{Image, PixelCoord};
 use crate::vision::{ContrastStack, VisionModel};
 use rand::Rng;
 
-/// The previous (issue #3) adaptive block map between two decomposed images, seeded with `seeds` (the
+/// The plain adaptive block map between two decomposed images, seeded with `seeds` (the
 /// renderer's traced pixels), deterministic for a given `params.seed`.
 ///
 /// Breadth-first: each tree level draws its cells' samples (seeds first, then uniform

@@ -66,7 +66,7 @@ fn object_colour(id: ObjectId) -> [u8; 3] {
     [r, g, b].map(|c: f64| (c * value).round() as u8)
 }
 
-/// The JND colour scale of `raster::colormap` (issue #3), at the frame's size so viewers
+/// The JND colour scale of `raster::colormap`, at the frame's size so viewers
 /// can overlay it; the legend variant (`colormap::distance_with_legend`) is larger.
 fn distance_colours(d: &Image<f32>) -> Image<[u8; 3]> {
     raster::colormap::distance_rgb8(d)

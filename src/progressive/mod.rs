@@ -29,7 +29,7 @@
 //!   Some(false)`. The twins are in `stats.noise_probe_pixels` and the timings, not in
 //!   `pixels_traced`.
 //!
-//! Choices worth knowing (see the report of issue #4):
+//! Choices worth knowing:
 //! * Frame 0 is the Gouraud image of the first sample set; frame 1 adds one sample near
 //!   every triangle's centre; from frame 1 on, each frame carries the distance map between
 //!   it and the previous frame and the classes that decide the next tracing step.

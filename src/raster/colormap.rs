@@ -1,5 +1,5 @@
 //! Colour scales for the diagnostic layers (samples, distance, classes).
-//! Owned by the vision/metric work (issue #3): the distance scale and its legend.
+//! The distance scale and its legend.
 //!
 //! Distances are in JNDs (vision-model.md §2.7). The scale is perceptually ordered (an
 //! inferno-like ramp, dark = invisible, bright = very visible) and logarithmic-ish,

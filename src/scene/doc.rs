@@ -1,5 +1,5 @@
 //! The scene document exactly as `shared/spec/scene-format.md` defines it (serde,
-//! unknown fields refused). Owned by issue #2's scene work.
+//! unknown fields refused).
 //!
 //! These types only describe the *shape* of the JSON; every range and consistency check
 //! lives in [`super::validate`], which turns a [`SceneDoc`] into a [`super::Scene`].

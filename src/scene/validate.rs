@@ -1,5 +1,5 @@
 //! Validation of a [`super::doc`] document into a [`super::Scene`]: collects every problem
-//! with its JSON path. Owned by issue #2's scene work.
+//! with its JSON path.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;

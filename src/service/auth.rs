@@ -1,4 +1,4 @@
-//! Access control for `/v1` (issue #5): off by default; with a token, every `/v1` call
+//! Access control for `/v1`: off by default; with a token, every `/v1` call
 //! needs `Authorization: Bearer <token>`. WebSocket streams may pass `?token=` instead,
 //! because browsers cannot set headers on a WebSocket. `/`, `/healthz` and `/metrics`
 //! stay open (the viewer page asks for the token itself; probes need no secret).

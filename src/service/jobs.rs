@@ -705,7 +705,7 @@ impl Jobs {
         lock(&inner.live).insert(id, live);
         inner.queue.push_reserved(id);
         inner.metrics.jobs_submitted.fetch_add(1, Ordering::Relaxed);
-        // One log line per state transition, keyed by `id` (issue #6, operations).
+        // One log line per state transition, keyed by `id`, so an operator can follow a job.
         tracing::info!(%id, name, state = "queued", "job accepted");
         Ok(rec)
     }

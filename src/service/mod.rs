@@ -1,6 +1,5 @@
 //! The render service: REST jobs, a durable embedded store, a worker pool and WebSocket
 //! streaming (shared/spec/service-api.md). The only async code and the only wire JSON.
-//! Owned by issue #5.
 //!
 //! Layout:
 //! - [`http`]: router, limit layers, extractors, `ApiError` (the only type that knows

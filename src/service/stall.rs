@@ -1,4 +1,4 @@
-//! A bounded wait for a client that does not read (issue 14).
+//! A bounded wait for a client that does not read.
 //!
 //! Nothing else bounds how long a response or a stream may wait for its reader: hyper
 //! stops polling a body while the socket's buffer is full, so a timer inside the body

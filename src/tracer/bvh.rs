@@ -520,7 +520,7 @@ mod tests {
 
     /// A million identical triangles, and a million shifted evenly by a hair (each pair of
     /// neighbours the same distance apart, so all costs tie again): built in well under
-    /// the 5 s issue 14 allows (measured ~1 s each in release), and still hit.
+    /// the 5 s a scene's preparation may take (measured ~1 s each in release), and still hit.
     #[test]
     fn a_million_duplicates_build_fast_and_are_hit() {
         for (what, scene) in [

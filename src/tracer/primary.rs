@@ -5,7 +5,7 @@
 //! is traced: those whose projection overlaps the pixel. For a scene of a few dozen or
 //! hundred primitives, each 8×8-pixel tile keeps that list (conservatively, with a margin
 //! far above rounding) and a camera ray tests only its tile's list instead of traversing
-//! the BVH (issue #2: the CWBVH traversal was ~70 % of a primary ray on the Cornell box).
+//! the BVH (the CWBVH traversal was ~70 % of a primary ray on the Cornell box).
 //! Tiles with the same list share it (the inside of a wall is one list).
 //!
 //! Because the origin is the same for every camera ray, the origin-dependent half of

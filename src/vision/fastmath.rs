@@ -5,7 +5,7 @@
 
 /// log2 of a positive, normal, finite `x`. Callers guarantee `x ≥ 1e-30`. Branch-free and
 /// division-free so the lane loops vectorise and the dependency chain stays short (the
-/// per-pixel kernel is latency-bound: issue #3).
+/// per-pixel kernel is latency-bound).
 ///
 /// Range reduction in integers: subtracting the bits of √½ makes the exponent field round
 /// to the nearest power of two, so `x = 2^e · m` with `m ∈ [√½, √2)` without a compare.
@@ -163,7 +163,7 @@ mod tests {
             let want = 2f64.powf(f64::from(yf));
             worst_exp = worst_exp.max(((f64::from(exp2(yf)) - want) / want).abs());
         }
-        // Measured 9.5e-8 and 1.5e-7 (the atanh/Taylor versions before issue #3's rewrite:
+        // Measured 9.5e-8 and 1.5e-7 (atanh/Taylor versions of the same functions:
         // 1.05e-7 and 2.2e-7): a coefficient typo or a lost Estrin term is far above these.
         assert!(worst_log < 1.5e-7, "log2 worst error {worst_log}");
         assert!(worst_exp < 2e-7, "exp2 worst rel error {worst_exp}");
@@ -174,7 +174,7 @@ mod tests {
     }
 
     /// Outside the callers' contract (they clamp to ≥ 1e-30 first) the functions stay
-    /// finite and never panic, as before issue #3's rewrite.
+    /// finite and never panic.
     #[test]
     fn extremes_stay_finite() {
         // 0 and denormals: ≈ −127 (the exponent field is 0).

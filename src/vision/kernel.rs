@@ -2,8 +2,7 @@
 //! for [`LANES`] pixels at once, structure-of-arrays: every value below is a
 //! `[f32; LANES]` with one pixel per lane, so each lane loop compiles to packed SIMD code
 //! (SSE2 on the baseline target, AVX2 or AVX-512 through [`VisionModel::batch`]'s runtime
-//! dispatch). The `8` in names (`V8`, `distance8`, ...) is historical: LANES was 8 until
-//! issue #4.
+//! dispatch). The `8` in names (`V8`, `distance8`, ...) is historical: LANES was once 8.
 //!
 //! Why: the per-pixel map was ~1.7 µs CPU per pixel, 80 % of it in the ≈ 70 powers per
 //! pixel of §2.8, computed 4 lanes at a time with a quarter of the lanes idle, plus a
@@ -558,7 +557,7 @@ mod band_skip_tests {
     use crate::vision::DisplayModel;
 
     impl VisionModel {
-        /// The issue #3 `distance8`: every band evaluated, whatever the images.
+        /// `distance8` without band skipping: every band evaluated, whatever the images.
         fn distance8_all_bands(
             &self,
             a: &ContrastStack,

@@ -1,5 +1,5 @@
 //! Pattanaik, Ferwerda, Fairchild & Greenberg (1998), used as an image metric
-//! (shared/spec/vision-model.md §2). Owned by issue #3.
+//! (shared/spec/vision-model.md §2).
 //!
 //! The spatial decomposition runs on whole images ([`VisionModel::decompose`]); everything
 //! after it is per pixel ([`VisionModel::distance_at`]), so the adaptive metric can
@@ -440,7 +440,7 @@ impl VisionModel {
 /// Index of the first pixel with a NaN or infinite channel (only run when the first level
 /// flagged one, or when there is no level). Sequential on purpose:
 /// rayon's `position_first` checks a shared atomic per item and measured 13× slower than a
-/// scan (issue #3). The scan takes the largest exponent field of each block of pixels
+/// scan. The scan takes the largest exponent field of each block of pixels
 /// (an integer max, which vectorises, unlike a short-circuiting `is_finite` per pixel):
 /// a value is non-finite exactly when its exponent bits are all ones. Only a failing block
 /// is searched pixel by pixel.

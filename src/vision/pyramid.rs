@@ -2,7 +2,7 @@
 //! (vision-model.md §2.2). Pixels hold the four receptor signals (L, M, S, R) interleaved,
 //! so one bilinear lookup fetches all four and the blur loops vectorise.
 //!
-//! Speed (issue #3; decomposition of a 512² pair went from ≈ 26 to ≈ 10 ms of CPU): both
+//! Speed (decomposing a 512² pair costs ≈ 10 ms of CPU, ≈ 26 before these choices): both
 //! passes are whole-row multiply-adds, tap by tap (decimating levels read the padded row's
 //! even/odd phases), run as 8-wide AVX2 code when the CPU has it; the input's receptor
 //! conversion (§2.1) is fused into the first horizontal pass; level buffers are recycled
@@ -115,7 +115,7 @@ fn mirror(i: i64, n: i64) -> usize {
     (if m >= n { p - 1 - m } else { m }) as usize
 }
 
-/// Recycled sample buffers (issue #3): a [`super::ContrastStack`] hands its planes back
+/// Recycled sample buffers: a [`super::ContrastStack`] hands its planes back
 /// here when dropped and the next decomposition refills them, so a steady stream of
 /// decompositions (progressive frames, the bench) allocates nothing. Fresh multi-MB
 /// buffers cost a zero fill (`vec!`), page faults and TLB shoot-downs on free: about as
@@ -184,7 +184,7 @@ pub enum Source<'a> {
     Plane(&'a Plane),
     /// The linear input image, converted to receptor signals row by row inside the first
     /// level's horizontal pass (§2.1): the full-size receptor image is never stored
-    /// (issue #3: it was a 16 B/px write + read). The flag is set when a row read has a
+    /// (that would be a 16 B/px write + read). The flag is set when a row read has a
     /// NaN or infinite value (every row is read at least once by the first level); the
     /// caller then discards the levels and reports the first such pixel.
     Display(
@@ -984,7 +984,7 @@ impl Isa {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RowPath {
     pub isa: Isa,
-    /// Fused (issue #3/#4, s10): each task runs a band of output rows, keeping the
+    /// Fused: each task runs a band of output rows, keeping the
     /// horizontal-pass rows it needs in a ring of `taps` rows (L1/L2-resident) instead of
     /// a whole-level intermediate (a 4 MB write + read per full-resolution level at 512²).
     /// Unfused: the whole horizontal pass, then the whole vertical pass (the pre-s10 code,

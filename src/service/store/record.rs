@@ -113,7 +113,9 @@ pub struct Progress {
     pub eta_low_ms: Option<u64>,
     pub eta_high_ms: Option<u64>,
     pub eta_confidence: Option<f64>,
-    /// Close enough to the end that no time is given ("finishing").
+    /// Close enough to the end that no time is given ("finishing"). Absent in progress
+    /// stored before it existed.
+    #[serde(default)]
     pub finishing: bool,
 }
 
