@@ -125,6 +125,33 @@ pub struct Frame {
     pub last: bool,
 }
 
+#[cfg(test)]
+impl Frame {
+    /// A 1×1 frame of iteration `iteration` whose mean distance is `d` (tests of what
+    /// consumes frames: the time left, the service's jobs).
+    pub(crate) fn fixture(iteration: u32, d: f64, last: bool) -> Self {
+        Frame {
+            iteration,
+            image: Image::filled(1, 1, crate::raster::Rgb::ZERO),
+            samples: Image::filled(1, 1, SampleCell::New),
+            distance: None,
+            classes: Image::filled(1, 1, ClassCell::None),
+            objects: Arc::new(Image::filled(1, 1, 0)),
+            stats: RenderStats {
+                per_iteration: vec![IterationStats {
+                    iteration,
+                    mean_distance: d,
+                    ..Default::default()
+                }],
+                final_mean_distance: d,
+                pixel_fraction: 0.1,
+                ..Default::default()
+            },
+            last,
+        }
+    }
+}
+
 /// How to run a render (beyond what the scene says).
 #[derive(Clone, Debug, Default)]
 pub struct RenderOptions {

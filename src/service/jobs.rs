@@ -1156,29 +1156,11 @@ fn write_secondary_files(dir: &std::path::Path, lf: &LiveFrame) -> Result<(), St
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::progressive::{ClassCell, IterationStats, RenderStats, SampleCell};
+    use crate::progressive::{ClassCell, SampleCell};
     use crate::raster::{Image, Rgb};
 
     fn frame(iteration: u32, d: f64, last: bool) -> Frame {
-        Frame {
-            iteration,
-            image: Image::filled(1, 1, Rgb::ZERO),
-            samples: Image::filled(1, 1, SampleCell::New),
-            distance: None,
-            classes: Image::filled(1, 1, ClassCell::None),
-            objects: std::sync::Arc::new(Image::filled(1, 1, 0)),
-            stats: RenderStats {
-                per_iteration: vec![IterationStats {
-                    iteration,
-                    mean_distance: d,
-                    ..Default::default()
-                }],
-                final_mean_distance: d,
-                pixel_fraction: 0.1,
-                ..Default::default()
-            },
-            last,
-        }
+        Frame::fixture(iteration, d, last)
     }
 
     #[test]
