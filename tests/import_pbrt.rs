@@ -5,7 +5,8 @@
 //! (`glimpse render FILE.pbrt --exr`), as a person would.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+mod common;
 
 use glimpse::cancel::CancelToken;
 use glimpse::import::load_path;
@@ -50,35 +51,6 @@ fn bitterli_cornell_box_renders_like_the_glimpse_document() {
         );
     }
     eprintln!("cornell: pbrt {pbrt:?}, document {ours:?}");
-}
-
-/// Renders `scene` through the command line; the linear image and its size.
-fn render_cli(scene: &Path, w: u32, h: u32, spp: u32) -> (Vec<[f32; 3]>, u32, u32) {
-    let dir = tempfile::tempdir().unwrap();
-    let exr = dir.path().join("out.exr");
-    let out = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .arg("render")
-        .arg(scene)
-        .args(["--mode", "reference", "--spp", &spp.to_string()])
-        .args(["--size", &format!("{w}x{h}")])
-        .arg("--output")
-        .arg(dir.path().join("out.png"))
-        .arg("--exr")
-        .arg(&exr)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    read_exr(&exr)
-}
-
-fn read_exr(path: &Path) -> (Vec<[f32; 3]>, u32, u32) {
-    let img = image::open(path).unwrap().into_rgb32f();
-    let (w, h) = img.dimensions();
-    (img.pixels().map(|p| p.0).collect(), w, h)
 }
 
 /// The mean over pixels of each channel clamped to [0, 1], after box-averaging `img`
@@ -168,8 +140,11 @@ fn flip_against_tungsten(
 /// worst relative channel difference. Prints FLIP beside it.
 fn against_tungsten(folder: &str, w: u32, h: u32, spp: u32, rows: std::ops::Range<f64>) -> f64 {
     let dir = public(folder);
-    let (ours, ow, oh) = render_cli(&dir.join("scene-v4.pbrt"), w, h, spp);
-    let (refr, rw, rh) = read_exr(&dir.join("TungstenRender.exr"));
+    let (ours, ow, oh) = common::render_exr(
+        &dir.join("scene-v4.pbrt"),
+        &["--spp", &spp.to_string(), "--size", &format!("{w}x{h}")],
+    );
+    let (refr, rw, rh) = common::read_exr(&dir.join("TungstenRender.exr"));
     if rows == (0.0..1.0) {
         flip_against_tungsten(folder, &ours, (ow, oh), (&refr, rw, rh));
     }

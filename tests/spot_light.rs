@@ -6,7 +6,7 @@
 //! full inside 20°, pbrt-v4's smoothstep in cos θ between 20° and 30°, black beyond. Each
 //! pixel's expectation is averaged over its area (the render's box filter).
 
-use std::process::Command;
+mod common;
 
 const SIZE: u32 = 64;
 const H: f64 = 2.0;
@@ -62,31 +62,15 @@ Shape "trianglemesh" "point3 P" [-10 -10 0  10 -10 0  10 10 0  -10 10 0]
         ),
     )
     .unwrap();
-    let exr = dir.path().join("out.exr");
-    let out = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .arg("render")
-        .arg(&scene)
-        .args(["--mode", "reference", "--spp", "64"])
-        .arg("--output")
-        .arg(dir.path().join("out.png"))
-        .arg("--exr")
-        .arg(&exr)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let img = image::open(&exr).unwrap().into_rgb32f();
-    assert_eq!(img.dimensions(), (SIZE, SIZE));
+    let (img, w, h) = common::render_exr(&scene, &["--spp", "64"]);
+    assert_eq!((w, h), (SIZE, SIZE));
     let (mut band, mut dark) = (0, 0);
     let mut worst: f64 = 0.0;
     // Inside the inner cone the picture is smooth: the mean there is exact.
     let (mut flat_got, mut flat_want) = (0.0, 0.0);
     for y in 0..SIZE {
         for x in 0..SIZE {
-            let got = f64::from(img.get_pixel(x, y).0[0]);
+            let got = f64::from(img[(y * SIZE + x) as usize][0]);
             let want = pixel_expected(x, y);
             let peak = expected(1.0);
             worst = worst.max((got - want).abs() / peak);

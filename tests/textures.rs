@@ -13,6 +13,8 @@
 use std::path::Path;
 use std::process::Command;
 
+mod common;
+
 use base64::Engine as _;
 
 /// The texture: an 8×8 image whose 4×4 quadrants are one colour each (8-bit sRGB values):
@@ -45,27 +47,11 @@ fn srgb_to_linear(v: u8) -> f64 {
 
 /// Renders `scene` through the command line at 64², every pixel traced.
 fn render(scene: &Path, spp: u32) -> Vec<[f32; 3]> {
-    let dir = tempfile::tempdir().unwrap();
-    let exr = dir.path().join("out.exr");
-    let out = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .arg("render")
-        .arg(scene)
-        .args(["--mode", "reference", "--spp", &spp.to_string()])
-        .args(["--size", "64x64", "--seed", "3"])
-        .arg("--output")
-        .arg(dir.path().join("out.png"))
-        .arg("--exr")
-        .arg(&exr)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let img = image::open(&exr).unwrap().into_rgb32f();
-    assert_eq!(img.dimensions(), (64, 64));
-    img.pixels().map(|p| p.0).collect()
+    let spp = spp.to_string();
+    let args = ["--spp", spp.as_str(), "--size", "64x64", "--seed", "3"];
+    let (img, w, h) = common::render_exr(scene, &args);
+    assert_eq!((w, h), (64, 64));
+    img
 }
 
 /// The square spans x, y ∈ [−1, 1] at z = 0, seen from (0, 0, 3) with a vertical field of

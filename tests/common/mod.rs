@@ -278,3 +278,34 @@ pub async fn test_database(dir: &Path) -> Option<glimpse::service::store::Databa
     };
     Some(glimpse::service::store::Database::Postgres(url))
 }
+
+/// Renders `scene` in reference mode through the real binary with `args` (e.g. `--spp`,
+/// `--size`), and returns the linear EXR it wrote: pixels row-major and the size.
+pub fn render_exr(scene: &Path, args: &[&str]) -> (Vec<[f32; 3]>, u32, u32) {
+    let dir = tempfile::tempdir().unwrap();
+    let exr = dir.path().join("out.exr");
+    let out = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .arg("render")
+        .arg(scene)
+        .args(["--mode", "reference"])
+        .args(args)
+        .arg("--output")
+        .arg(dir.path().join("out.png"))
+        .arg("--exr")
+        .arg(&exr)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    read_exr(&exr)
+}
+
+/// A linear EXR's pixels (row-major) and size.
+pub fn read_exr(path: &Path) -> (Vec<[f32; 3]>, u32, u32) {
+    let img = image::open(path).unwrap().into_rgb32f();
+    let (w, h) = img.dimensions();
+    (img.pixels().map(|p| p.0).collect(), w, h)
+}
