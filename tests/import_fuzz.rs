@@ -150,7 +150,7 @@ fn zip_mutants_are_unpacked_or_refused() {
     let mut dir = Vec::new();
     for (name, data) in [("scene.pbrt", &scene), ("m.ply", &ply)] {
         let at = z.len() as u32;
-        let mut head = |v: &mut Vec<u8>, central: bool| {
+        let head = |v: &mut Vec<u8>, central: bool| {
             v.extend(if central {
                 [0x50, 0x4b, 1, 2]
             } else {

@@ -80,6 +80,31 @@ pub fn contour(tri: &Tri, width: u32, stamp: &mut Stamp, out: &mut Vec<ContourPi
     }
 }
 
+/// [`contour`] with its own stamp and buffer, reused from triangle to triangle.
+pub struct ContourWalker {
+    stamp: Stamp,
+    buf: Vec<ContourPixel>,
+    width: u32,
+}
+
+impl ContourWalker {
+    /// A walker over an image `width` pixels wide holding `n` pixels.
+    #[must_use]
+    pub fn new(width: u32, n: usize) -> Self {
+        Self {
+            stamp: Stamp::new(n),
+            buf: Vec::new(),
+            width,
+        }
+    }
+
+    /// The contour of `tri` ([`contour`]), valid until the next walk.
+    pub fn walk(&mut self, tri: &Tri) -> &[ContourPixel] {
+        contour(tri, self.width, &mut self.stamp, &mut self.buf);
+        &self.buf
+    }
+}
+
 /// Where a line meets the contour: (line parameter t, edge index, edge parameter s).
 pub type Hit = (f64, usize, f64);
 

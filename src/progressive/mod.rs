@@ -94,6 +94,16 @@ pub enum ClassCell {
     Complex = 3,
 }
 
+impl From<TriangleClass> for ClassCell {
+    fn from(c: TriangleClass) -> Self {
+        match c {
+            TriangleClass::Final => ClassCell::Final,
+            TriangleClass::Smooth => ClassCell::Smooth,
+            TriangleClass::Complex => ClassCell::Complex,
+        }
+    }
+}
+
 /// Value of a pixel in the `samples` layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[repr(u8)]

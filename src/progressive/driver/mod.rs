@@ -1,0 +1,696 @@
+//! The progressive loop of F&P04 §4.2 (and Guo's baseline on the same machinery).
+//!
+//! A render: analyse the image (§4.1: object ids, surface normals, texture albedos),
+//! trace the first sample set, triangulate and shade it. Then each iteration reads as its
+//! phases:
+//! 1. classify the triangles ([`classifier`]: the perceptual distance between successive
+//!    frames, or Guo's contrast test);
+//! 2. plan what each class asks for ([`plan`]);
+//! 3. stop, or not ([`budget`]);
+//! 4. emit the frame;
+//! 5. trace the plan, re-triangulate ([`Mesh`]), shade ([`samples`]), and fill the complex
+//!    triangles along their rupture ([`fill`]).
+//!
+//! Each pixel is traced at most once ([`samples::SampleSet`]); the triangulation is
+//! incremental and its vertices are exactly the traced pixels.
+
+mod budget;
+mod classifier;
+mod fill;
+mod judge;
+mod noise_twin;
+mod plan;
+mod samples;
+
+pub use budget::Stop;
+pub use judge::{Judge, VisionJudge};
+
+use super::classify::guarded_t1;
+use super::complex::ContourWalker;
+use super::mesh::{rasterise, Raster, Tri, Triangulator};
+use super::seeding::initial_samples;
+use super::{ClassCell, Frame, IterationStats, RenderStats, TriangleClass};
+use crate::cancel::{CancelToken, Cancelled};
+use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
+use crate::scene::ObjectId;
+use crate::tracer::{self, PixelOracle};
+use budget::Budget;
+use classifier::{Classification, Classifier, Guo, Perceptual, View};
+use plan::Plan;
+use samples::SampleSet;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Pixels per `trace_pixels` call; time and pixel budgets are checked between calls.
+const CHUNK: usize = 4096;
+
+/// Which classification oracle drives the loop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Oracle {
+    /// F&P04: the perceptual distance between successive frames.
+    Perceptual,
+    /// Guo 1998 via Mitchell's contrast test (spec §4.3); no final class.
+    Guo,
+}
+
+/// Everything the loop needs besides the pixel oracle.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub oracle: Oracle,
+    pub t0: f32,
+    pub t1: Option<f32>,
+    pub initial_rate: f32,
+    pub max_iterations: u32,
+    pub seed: u64,
+    /// Display exposure (Guo's contrast test and rupture jumps use displayed values).
+    pub exposure: f32,
+    pub max_pixels: Option<u64>,
+    pub max_time: Option<Duration>,
+    /// The scene's samples per pixel: the noise twins use the same estimator.
+    pub samples_per_pixel: u32,
+    /// Noise-aware classification ([`super::noise`]); perceptual mode only.
+    pub noise_compensation: bool,
+    /// The declared viewing condition: how much averaging the reconstruction needs
+    /// ([`super::reconstruct`]).
+    pub pixels_per_degree: f32,
+}
+
+/// The Delaunay triangulation of the traced pixels (F&P04 §4.2) as triangles, and which
+/// triangle owns each pixel.
+pub(super) struct Mesh {
+    pub tris: Vec<Tri>,
+    pub raster: Raster,
+}
+
+impl Mesh {
+    fn of(tri: &Triangulator, w: u32, h: u32) -> Self {
+        let tris = tri.triangles();
+        let raster = rasterise(&tris, w, h);
+        Self { tris, raster }
+    }
+}
+
+/// One render's state: the samples, the budget and the statistics.
+struct Run<'a, O: PixelOracle> {
+    oracle: &'a O,
+    s: &'a Settings,
+    px: SampleSet,
+    budget: Budget,
+    start: Instant,
+    stats: RenderStats,
+    it: IterationStats,
+}
+
+/// Runs the loop. `judge` is used in perceptual mode only.
+pub fn run<O: PixelOracle>(
+    oracle: &O,
+    s: &Settings,
+    judge: &mut dyn Judge,
+    on_frame: &mut dyn FnMut(&Frame),
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
+    let mut r = Run::new(oracle, s);
+    if cancel.is_cancelled() {
+        return Err(Cancelled);
+    }
+    let (w, h) = (r.px.w, r.px.h);
+    let (ids, seeds) = r.analyse();
+    if w < 2 || h < 2 {
+        return r.trace_whole(ids, on_frame, cancel);
+    }
+    r.analyse_textures();
+    let first = r.trace(&seeds, 0, cancel)?;
+    let mut tri = Triangulator::new();
+    let t = Instant::now();
+    tri.insert(&first);
+    let mut mesh = Mesh::of(&tri, w, h);
+    let mut cur = r.shaded(&mesh, &tri, ids.pixels());
+    r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
+    let mut classifier = r.classifier(judge, &first, &mesh, &tri, ids.pixels(), &cur, cancel)?;
+
+    let mut contours = ContourWalker::new(w, r.px.n);
+    let mut prev: Option<LinearImage> = None;
+    let mut last_distance: Option<Image<f32>> = None;
+    let mut iter = 0u32;
+    loop {
+        if cancel.is_cancelled() {
+            return Err(Cancelled);
+        }
+        // 1. Classify.
+        let mut c = if r.px.all_traced() {
+            // Everything is exact: nothing left to judge.
+            let mut c = Classification::uniform(TriangleClass::Final, mesh.tris.len(), true);
+            c.distance = last_distance.clone();
+            c
+        } else {
+            let view = View {
+                samples: &r.px,
+                mesh: &mesh,
+                ids: ids.pixels(),
+                prev: prev.as_ref(),
+                cur: &cur,
+                iteration: iter,
+            };
+            classifier.classify(&view, &mut contours)
+        };
+        r.it.metric_ms += c.metric_ms;
+        if c.distance.is_some() {
+            last_distance = c.distance.clone();
+        }
+        // 2. Plan.
+        let plan = Plan::new(
+            &mut r.px,
+            &mesh,
+            &mut c.classes,
+            ids.pixels(),
+            &mut contours,
+        );
+        // 3. Stop?
+        let stop = r.budget.stop(r.px.all_traced(), plan.work.is_empty(), iter);
+        // 4. Emit the frame.
+        let frame = r.frame(iter, cur, c, &mesh.raster, classifier.t1(), stop, &ids);
+        on_frame(&frame);
+        if stop.is_some() {
+            return Ok(frame);
+        }
+        cur = frame.image;
+        // 5. Trace, re-triangulate, shade, fill.
+        let (next_mesh, t) = r.refine(&mut tri, &plan.work, iter + 1, cancel)?;
+        let mut next = r.shaded(&next_mesh, &tri, ids.pixels());
+        for &k in &plan.complex {
+            let (tr, px) = (&mesh.tris[k], &r.px);
+            let out = next.pixels_mut();
+            fill::fill_complex(
+                tr,
+                &mesh.raster,
+                k,
+                px,
+                &*classifier,
+                s.exposure,
+                &mut contours,
+                out,
+            );
+        }
+        r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
+        mesh = next_mesh;
+        prev = Some(std::mem::replace(&mut cur, next));
+        iter += 1;
+    }
+}
+
+impl<'a, O: PixelOracle> Run<'a, O> {
+    fn new(oracle: &'a O, s: &'a Settings) -> Self {
+        let start = Instant::now();
+        let (w, h) = oracle.size();
+        let mode = match s.oracle {
+            Oracle::Perceptual => "progressive",
+            Oracle::Guo => "guo",
+        };
+        Self {
+            oracle,
+            s,
+            px: SampleSet::new(w, h),
+            budget: Budget::new(s.max_pixels, s.max_time, s.max_iterations, start),
+            start,
+            stats: RenderStats {
+                mode: mode.into(),
+                width: w,
+                height: h,
+                ..RenderStats::default()
+            },
+            it: IterationStats::default(),
+        }
+    }
+
+    /// §4.1: the object-id map (one primary ray per pixel) and the surface normals beside
+    /// it, and the first sample set (contour pixels of the id map, then uniform ones), as
+    /// pixel indices.
+    fn analyse(&mut self) -> (Arc<Image<ObjectId>>, Vec<usize>) {
+        let t = Instant::now();
+        let ids = Arc::new(tracer::object_id_map(self.oracle));
+        self.px.normals = tracer::normal_map(self.oracle);
+        let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
+        let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
+        self.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
+        (ids, seeds)
+    }
+
+    /// Textured scenes only: the texture's detail comes from this map (mesh.rs
+    /// `gouraud`); part of the analysis, like the object ids.
+    fn analyse_textures(&mut self) {
+        let t = Instant::now();
+        self.px.albedo = tracer::texture_albedo_map(self.oracle);
+        self.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
+    }
+
+    /// The classification oracle of `Settings::oracle`. The perceptual one measures the
+    /// noise twin of the first sample set first, when noise compensation is on and
+    /// anything can become final (T0 > 0).
+    #[allow(clippy::too_many_arguments)]
+    fn classifier<'j>(
+        &mut self,
+        judge: &'j mut dyn Judge,
+        first: &[PixelCoord],
+        mesh: &Mesh,
+        tri: &Triangulator,
+        ids: &[ObjectId],
+        cur: &LinearImage,
+        cancel: &CancelToken,
+    ) -> Result<Box<dyn Classifier + 'j>, Cancelled> {
+        let s = self.s;
+        let t0 = f64::from(s.t0);
+        let t1 = s.t1.map(|v| guarded_t1(t0, f64::from(v)));
+        Ok(match s.oracle {
+            Oracle::Perceptual => {
+                let noise = if s.noise_compensation && s.t0 > 0.0 {
+                    self.noise_twin(first, mesh, tri, ids, cur, judge, cancel)?
+                } else {
+                    None
+                };
+                Box::new(Perceptual {
+                    judge,
+                    t0,
+                    t1,
+                    noise,
+                    exposure: s.exposure,
+                })
+            }
+            Oracle::Guo => Box::new(Guo {
+                t1,
+                exposure: s.exposure,
+                finals: s.t0 > 0.0,
+            }),
+        })
+    }
+
+    /// Traces `list` (pixel indices, untraced, no duplicates) in chunks, honouring the
+    /// pixel and time budgets and the cancel token between chunks. Returns what was traced.
+    fn trace(
+        &mut self,
+        list: &[usize],
+        iter: u32,
+        cancel: &CancelToken,
+    ) -> Result<Vec<PixelCoord>, Cancelled> {
+        let t = Instant::now();
+        let list = self.budget.allow(list, self.px.count);
+        let mut done = Vec::with_capacity(list.len());
+        for chunk in list.chunks(CHUNK) {
+            if cancel.is_cancelled() {
+                return Err(Cancelled);
+            }
+            // The first sample set is always traced whole (frame 0 needs a triangulation);
+            // later sets stop at the time budget between chunks.
+            if iter > 0 && self.budget.time_up() {
+                self.budget.time_hit();
+                break;
+            }
+            // Raster order inside a chunk: neighbouring pixels follow similar paths through
+            // the BVH and the textures, so tracing them together keeps caches warm (the
+            // work list comes in triangle order). Values do not depend on order.
+            let mut sorted = chunk.to_vec();
+            sorted.sort_unstable();
+            let coords: Vec<PixelCoord> = sorted.iter().map(|&i| self.px.coord(i)).collect();
+            let estimates = tracer::trace_estimates(self.oracle, &coords, cancel)?;
+            for (&i, e) in sorted.iter().zip(estimates) {
+                self.px.record(i, e, iter);
+            }
+            done.extend_from_slice(&coords);
+        }
+        self.it.trace_ms += t.elapsed().as_secs_f64() * 1e3;
+        self.it.pixels_traced += done.len() as u64;
+        if self.budget.time_up() {
+            self.budget.time_hit();
+        }
+        Ok(done)
+    }
+
+    /// Traces `work` and inserts it into the triangulation; the new mesh, and when the
+    /// loop began to wait for it (triangulation time counts from there).
+    ///
+    /// The triangulation depends on the new samples' positions, not their values: when no
+    /// budget can cut the trace short (every queued pixel will be traced), they are
+    /// inserted and rasterised on another thread while they are traced. Spade's insertion
+    /// is serial; overlapped, it costs the trace about half its time instead of all of it.
+    /// The result is the same triangulation (same points, same insertion order).
+    fn refine(
+        &mut self,
+        tri: &mut Triangulator,
+        work: &[usize],
+        iter: u32,
+        cancel: &CancelToken,
+    ) -> Result<(Mesh, Instant), Cancelled> {
+        let (w, h) = (self.px.w, self.px.h);
+        if self.budget.can_cut() {
+            let new = self.trace(work, iter, cancel)?;
+            let t = Instant::now();
+            tri.insert(&new);
+            return Ok((Mesh::of(tri, w, h), t));
+        }
+        let coords: Vec<PixelCoord> = work.iter().map(|&i| self.px.coord(i)).collect();
+        let (traced, mesh, t) = std::thread::scope(|sc| {
+            let side = sc.spawn(move || {
+                tri.insert(&coords);
+                Mesh::of(tri, w, h)
+            });
+            let traced = self.trace(work, iter, cancel);
+            (traced, side.join(), Instant::now())
+        });
+        traced?;
+        // A panic there is the same bug as one inline: hand it on unchanged.
+        let mesh = mesh.unwrap_or_else(|e| std::panic::resume_unwind(e));
+        Ok((mesh, t))
+    }
+
+    /// A new frame shaded on `mesh` ([`SampleSet::shade`]).
+    fn shaded(&mut self, mesh: &Mesh, tri: &Triangulator, ids: &[ObjectId]) -> LinearImage {
+        let (w, h) = (self.px.w, self.px.h);
+        let mut out = Image::filled(w, h, Rgb::ZERO);
+        let ppd = self.s.pixels_per_degree;
+        self.px
+            .shade(&mesh.tris, &mesh.raster, tri, ids, ppd, out.pixels_mut());
+        out
+    }
+
+    /// Iteration `iter`'s frame, its statistics closed.
+    #[allow(clippy::too_many_arguments)]
+    fn frame(
+        &mut self,
+        iter: u32,
+        image: LinearImage,
+        c: Classification,
+        raster: &Raster,
+        t1: Option<f64>,
+        stop: Option<Stop>,
+        ids: &Arc<Image<ObjectId>>,
+    ) -> Frame {
+        let (w, h) = (self.px.w, self.px.h);
+        let classes = if c.shown {
+            let cells: Vec<ClassCell> = raster
+                .owner
+                .iter()
+                .map(|&o| {
+                    c.classes
+                        .get(o as usize)
+                        .map_or(ClassCell::None, |&k| k.into())
+                })
+                .collect();
+            Image::from_vec(w, h, cells).unwrap_or_else(|| Image::filled(w, h, ClassCell::None))
+        } else {
+            Image::filled(w, h, ClassCell::None)
+        };
+        let [nf, ns, nc] = counts(&c.classes);
+        let mean = c.mean_distance;
+        self.it.iteration = iter;
+        self.it.mean_distance = if mean.is_finite() { mean } else { 0.0 };
+        self.it.triangles_final = nf;
+        self.it.triangles_smooth = ns;
+        self.it.triangles_complex = nc;
+        let it = std::mem::take(&mut self.it);
+        let st = &mut self.stats;
+        st.trace_ms += it.trace_ms;
+        st.metric_ms += it.metric_ms;
+        st.triangulate_ms += it.triangulate_ms;
+        if mean.is_finite() {
+            st.final_mean_distance = mean;
+        }
+        st.triangles_final = nf;
+        st.triangles_smooth = ns;
+        st.triangles_complex = nc;
+        st.t1_used = t1;
+        st.iterations = iter + 1;
+        st.per_iteration.push(it);
+        st.stop_reason = stop.map(|s| s.as_str().to_string());
+        self.finish_stats();
+        Frame {
+            iteration: iter,
+            image,
+            samples: self.px.layer(iter),
+            distance: c.distance,
+            classes,
+            objects: Arc::clone(ids),
+            stats: self.stats.clone(),
+            last: stop.is_some(),
+        }
+    }
+
+    /// An image one pixel wide or high has only collinear samples, hence no triangle: it
+    /// is traced whole (at most 16384 pixels by the scene limits) instead of interpolated.
+    fn trace_whole(
+        mut self,
+        ids: Arc<Image<ObjectId>>,
+        on_frame: &mut dyn FnMut(&Frame),
+        cancel: &CancelToken,
+    ) -> Result<Frame, Cancelled> {
+        let all: Vec<usize> = (0..self.px.n).collect();
+        self.trace(&all, 0, cancel)?;
+        let (w, h) = (self.px.w, self.px.h);
+        let image = Image::from_fn(w, h, |x, y| {
+            self.px.rad[y as usize * w as usize + x as usize]
+        });
+        let it = std::mem::take(&mut self.it);
+        self.stats.trace_ms += it.trace_ms;
+        self.stats.iterations = 1;
+        self.stats.per_iteration.push(it);
+        self.stats.stop_reason = Some(Stop::NoTriangles.as_str().to_string());
+        self.finish_stats();
+        let frame = Frame {
+            iteration: 0,
+            image,
+            samples: self.px.layer(0),
+            distance: None,
+            classes: Image::filled(w, h, ClassCell::None),
+            objects: ids,
+            stats: self.stats,
+            last: true,
+        };
+        on_frame(&frame);
+        Ok(frame)
+    }
+
+    fn finish_stats(&mut self) {
+        self.stats.total_ms = self.start.elapsed().as_secs_f64() * 1e3;
+        self.stats.pixels_traced = self.px.count;
+        self.stats.pixel_fraction = self.px.count as f64 / self.px.n.max(1) as f64;
+    }
+}
+
+/// Triangles per class: final, smooth, complex.
+fn counts(classes: &[TriangleClass]) -> [u64; 3] {
+    let mut n = [0u64; 3];
+    for c in classes {
+        n[match c {
+            TriangleClass::Final => 0,
+            TriangleClass::Smooth => 1,
+            TriangleClass::Complex => 2,
+        }] += 1;
+    }
+    n
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Fn2<F>(u32, u32, F);
+    impl<F: Fn(u32, u32) -> Rgb + Sync> PixelOracle for Fn2<F> {
+        fn size(&self) -> (u32, u32) {
+            (self.0, self.1)
+        }
+        fn radiance(&self, p: PixelCoord) -> Rgb {
+            (self.2)(p.x, p.y)
+        }
+        fn radiance_with(&self, p: PixelCoord, _: u32, _: u64) -> Rgb {
+            (self.2)(p.x, p.y)
+        }
+        fn object_id(&self, _: PixelCoord) -> ObjectId {
+            0
+        }
+    }
+
+    /// A judge that answers a constant map, or nothing.
+    struct Const(Option<f32>, u32);
+    impl Judge for Const {
+        fn distance(
+            &mut self,
+            _: &LinearImage,
+            cur: &LinearImage,
+            _: &[PixelCoord],
+            _: u32,
+        ) -> Option<Image<f32>> {
+            self.1 += 1;
+            self.0.map(|v| Image::filled(cur.width(), cur.height(), v))
+        }
+    }
+
+    fn settings(oracle: Oracle) -> Settings {
+        Settings {
+            oracle,
+            t0: 1.0,
+            t1: None,
+            initial_rate: 0.02,
+            max_iterations: 1000,
+            seed: 3,
+            exposure: 1.0,
+            max_pixels: None,
+            max_time: None,
+            samples_per_pixel: 1,
+            noise_compensation: true,
+            pixels_per_degree: 28.0,
+        }
+    }
+
+    fn go(s: &Settings, judge: &mut dyn Judge) -> (Frame, usize) {
+        let o = Fn2(30, 20, |x: u32, y: u32| {
+            Rgb::new(x as f32 * 0.01, y as f32 * 0.02, 0.1)
+        });
+        let mut frames = 0;
+        let f =
+            run(&o, s, judge, &mut |_| frames += 1, &CancelToken::new()).expect("not cancelled");
+        (f, frames)
+    }
+
+    #[test]
+    fn a_zero_judge_makes_everything_final_after_the_second_frame() {
+        let mut j = Const(Some(0.0), 0);
+        let (f, frames) = go(&settings(Oracle::Perceptual), &mut j);
+        assert_eq!((frames, j.1), (2, 1));
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("all_final"));
+        assert_eq!(
+            f.stats.t1_used,
+            Some(1.001),
+            "T1 of a zero first map is guarded above T0"
+        );
+    }
+
+    /// A flat or step-edged field with seed-dependent noise (so the noise twins differ),
+    /// one object everywhere.
+    struct Noisy {
+        step: bool,
+        amp: f32,
+    }
+    impl PixelOracle for Noisy {
+        fn size(&self) -> (u32, u32) {
+            (40, 30)
+        }
+        fn radiance(&self, p: PixelCoord) -> Rgb {
+            self.radiance_with(p, 1, 0)
+        }
+        fn radiance_with(&self, p: PixelCoord, _: u32, seed: u64) -> Rgb {
+            let h = ((u64::from(p.x) * 0x9E37_79B9) ^ (u64::from(p.y) * 0x85EB_CA6B) ^ seed)
+                .wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            let n = ((h >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * self.amp;
+            let base = if self.step && p.x >= 20 { 0.9 } else { 0.1 };
+            Rgb::splat(base + n)
+        }
+        fn object_id(&self, _: PixelCoord) -> ObjectId {
+            0
+        }
+    }
+
+    /// Every frame distance is large, the twin noise small: the signal distance passes T1.
+    struct Loud;
+    impl Judge for Loud {
+        fn distance(
+            &mut self,
+            _: &LinearImage,
+            c: &LinearImage,
+            _: &[PixelCoord],
+            _: u32,
+        ) -> Option<Image<f32>> {
+            Some(Image::filled(c.width(), c.height(), 50.0))
+        }
+        fn noise_distance(
+            &mut self,
+            f: &LinearImage,
+            _: &LinearImage,
+            _: &[PixelCoord],
+        ) -> Option<Image<f32>> {
+            Some(Image::filled(f.width(), f.height(), 0.5))
+        }
+    }
+
+    #[test]
+    fn complex_triangles_need_a_discontinuity_beyond_the_noise() {
+        let mut s = settings(Oracle::Perceptual);
+        s.max_iterations = 2;
+        s.t1 = Some(10.0);
+        let complex = |o: &Noisy, s: &Settings| {
+            let mut n = 0;
+            run(
+                o,
+                s,
+                &mut Loud,
+                &mut |f| n += f.stats.triangles_complex,
+                &CancelToken::new(),
+            )
+            .expect("not cancelled");
+            n
+        };
+        // Flat field: every vertex differs by noise only → refined at centres, not complex.
+        assert_eq!(
+            complex(
+                &Noisy {
+                    step: false,
+                    amp: 0.02
+                },
+                &s
+            ),
+            0
+        );
+        // A step 0.1 → 0.9 inside one object: the triangles across it stay complex.
+        assert!(
+            complex(
+                &Noisy {
+                    step: true,
+                    amp: 0.02
+                },
+                &s
+            ) > 0
+        );
+        // Without compensation F&P04 is unchanged: the flat field's triangles are complex.
+        s.noise_compensation = false;
+        assert!(
+            complex(
+                &Noisy {
+                    step: false,
+                    amp: 0.02
+                },
+                &s
+            ) > 0
+        );
+    }
+
+    #[test]
+    fn an_unavailable_judge_refines_until_everything_is_traced() {
+        let mut j = Const(None, 0);
+        let (f, _) = go(&settings(Oracle::Perceptual), &mut j);
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("all_traced"));
+        assert_eq!(f.stats.pixels_traced, 600);
+    }
+
+    #[test]
+    fn a_large_distance_makes_complex_triangles_and_budgets_stop_the_loop() {
+        let mut j = Const(Some(50.0), 0);
+        let mut s = settings(Oracle::Perceptual);
+        s.max_pixels = Some(100);
+        let (f, _) = go(&s, &mut j);
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("max_pixels"));
+        assert_eq!(f.stats.pixels_traced, 100);
+        s.max_pixels = None;
+        s.max_time = Some(Duration::ZERO);
+        let (f, frames) = go(&s, &mut j);
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("max_time"));
+        assert!(
+            frames <= 2 && f.stats.pixels_traced > 4,
+            "the first set is traced whole"
+        );
+        s.max_time = None;
+        s.max_iterations = 3;
+        let (f, frames) = go(&s, &mut j);
+        assert_eq!(
+            (frames, f.stats.stop_reason.as_deref()),
+            (3, Some("max_iterations"))
+        );
+        assert!(f.stats.triangles_complex > 0);
+    }
+}

@@ -1,0 +1,85 @@
+//! What the classes ask for (F&P04 §4.2): the pixels to trace next, and the complex
+//! triangles whose interior is filled along their rupture once their contour is traced.
+
+use super::samples::SampleSet;
+use super::Mesh;
+use crate::progressive::complex::{ContourWalker, FULL_TRACE_BELOW};
+use crate::progressive::mesh::orphan_of;
+use crate::progressive::TriangleClass;
+use crate::scene::ObjectId;
+use rayon::prelude::*;
+
+/// One iteration's work.
+pub(super) struct Plan {
+    /// Pixel indices to trace, untraced, without duplicates.
+    pub work: Vec<usize>,
+    /// Triangles (of the current mesh) to fill directionally after the trace.
+    pub complex: Vec<usize>,
+}
+
+impl Plan {
+    /// Plans the next trace. A final triangle may be demoted first:
+    /// - a triangle with a pixel on an object none of its vertices lies on cannot shade that
+    ///   pixel from its own object (mesh::gouraud): it is not final, whatever its distance,
+    ///   and the pixel (an *orphan*) is traced;
+    /// - noise the reconstruction could not average away without bias (an unresolved
+    ///   vertex) is error the frame-to-frame distance cannot see, since both frames carry
+    ///   it: refined there, down to F&P04's smallest triangles (below them vertices are
+    ///   pixels apart, and what stays unresolved is an image border, a silhouette or an
+    ///   outlier path that more vertices around it do not fix).
+    ///
+    /// Then smooth triangles get their untraced pixel nearest the centroid, complex ones
+    /// their contour (and their every pixel when smaller than [`FULL_TRACE_BELOW`]).
+    pub(super) fn new(
+        samples: &mut SampleSet,
+        mesh: &Mesh,
+        classes: &mut [TriangleClass],
+        ids: &[ObjectId],
+        contours: &mut ContourWalker,
+    ) -> Self {
+        let orphans: Vec<Option<usize>> = mesh
+            .tris
+            .par_iter()
+            .enumerate()
+            .map(|(t, tr)| orphan_of(tr, &mesh.raster, t, &samples.traced, ids))
+            .collect();
+        let mut work = Vec::new();
+        let mut complex = Vec::new();
+        for (t, tr) in mesh.tris.iter().enumerate() {
+            if let Some(i) = orphans[t] {
+                samples.push(i, &mut work);
+                if classes[t] == TriangleClass::Final {
+                    classes[t] = TriangleClass::Smooth;
+                }
+            }
+            if classes[t] == TriangleClass::Final
+                && tr.longest_edge() >= FULL_TRACE_BELOW
+                && !samples.is_resolved(tr)
+            {
+                classes[t] = TriangleClass::Smooth;
+            }
+            match classes[t] {
+                TriangleClass::Final => {}
+                TriangleClass::Smooth => samples.push_centre(tr, &mesh.raster, t, &mut work),
+                TriangleClass::Complex => {
+                    let mut added = 0;
+                    for c in contours.walk(tr) {
+                        added += usize::from(samples.push(samples.index(c.p), &mut work));
+                    }
+                    if tr.longest_edge() < FULL_TRACE_BELOW {
+                        for &i in mesh.raster.pixels_of(t) {
+                            samples.push(i as usize, &mut work);
+                        }
+                    } else {
+                        if added == 0 {
+                            samples.push_centre(tr, &mesh.raster, t, &mut work);
+                        }
+                        complex.push(t);
+                    }
+                }
+            }
+        }
+        samples.unqueue(&work);
+        Self { work, complex }
+    }
+}
