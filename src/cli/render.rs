@@ -286,6 +286,12 @@ fn done_share(elapsed_ms: f64, eta: &Eta) -> u64 {
 
 /// The progress bar's words after a frame of the progressive or Guo loop.
 fn frame_line(f: &progressive::Frame, elapsed_ms: f64, eta: &Eta) -> String {
+    if f.preview {
+        return format!(
+            "preview · {} elapsed · analysing the scene",
+            eta::seconds(elapsed_ms)
+        );
+    }
     format!(
         "iteration {} · {:.1} % of pixels traced · {} elapsed · {}",
         f.iteration + 1,

@@ -121,6 +121,9 @@ impl EtaTracker {
 
     /// The estimate after `frame`, `elapsed_ms` into the render.
     pub fn update(&mut self, frame: &Frame, elapsed_ms: f64) -> Eta {
+        if frame.preview {
+            return Eta::Unknown; // no iteration has run: nothing to extrapolate
+        }
         let d = frame
             .stats
             .per_iteration

@@ -13,6 +13,9 @@ pub fn encode_layer(
     layer: &str,
     exposure: f32,
 ) -> Result<Option<Vec<u8>>, CodecError> {
+    if frame.preview && layer != "image" {
+        return Ok(None);
+    }
     Ok(Some(match layer {
         "image" => raster::encode_png_display(&frame.image, exposure)?,
         "samples" => raster::encode_png_rgb8(&frame.samples.map(|s| match s {
@@ -89,6 +92,7 @@ mod tests {
             objects: std::sync::Arc::new(Image::from_fn(w, h, |x, _| x)),
             stats: Default::default(),
             last: true,
+            preview: false,
         };
         let all = encode_all(&frame).expect("encodes");
         let names: Vec<&str> = all.iter().map(|(n, _)| *n).collect();
@@ -104,5 +108,13 @@ mod tests {
         assert_ne!(object_colour(1), object_colour(2));
         assert_eq!(object_colour(BACKGROUND_ID), [0, 0, 0]);
         assert_eq!(encode_layer(&frame, "nope", 1.0).expect("ok"), None);
+        // A preview has a picture and nothing else yet.
+        frame.preview = true;
+        let names: Vec<&str> = encode_all(&frame)
+            .expect("encodes")
+            .iter()
+            .map(|(n, _)| *n)
+            .collect();
+        assert_eq!(names, ["image"]);
     }
 }

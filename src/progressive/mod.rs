@@ -56,6 +56,7 @@ pub mod guo;
 pub mod layers;
 pub mod mesh;
 pub mod noise;
+pub mod preview;
 pub mod reconstruct;
 pub mod seeding;
 pub mod stats;
@@ -133,6 +134,9 @@ pub struct Frame {
     pub stats: RenderStats,
     /// True for the last frame of a render.
     pub last: bool,
+    /// A coarse picture shown before the first iteration ([`preview`]): only its `image`
+    /// layer means anything, and no iteration has run.
+    pub preview: bool,
 }
 
 #[cfg(test)]
@@ -158,6 +162,7 @@ impl Frame {
                 ..Default::default()
             },
             last,
+            preview: false,
         }
     }
 }
@@ -298,6 +303,7 @@ fn render_reference(
         objects: Arc::new(tracer::object_id_map(oracle)),
         stats,
         last: true,
+        preview: false,
     };
     on_frame(&frame);
     Ok(frame)

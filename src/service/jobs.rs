@@ -166,6 +166,7 @@ impl LiveFrame {
         let layers = Layer::ALL
             .into_iter()
             .filter(|l| *l != Layer::Distance || frame.distance.is_some())
+            .filter(|l| *l == Layer::Image || !frame.preview)
             .collect();
         Self {
             frame,

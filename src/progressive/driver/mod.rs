@@ -28,11 +28,12 @@ pub use judge::{Judge, VisionJudge};
 use super::classify::guarded_t1;
 use super::complex::ContourWalker;
 use super::mesh::{rasterise, Raster, Tri, Triangulator};
+use super::preview;
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
-use crate::scene::ObjectId;
+use crate::scene::{ObjectId, BACKGROUND_ID};
 use crate::tracer::{self, PixelOracle};
 use budget::Budget;
 use classifier::{Classification, Classifier, Guo, Perceptual, View};
@@ -112,6 +113,9 @@ pub fn run<O: PixelOracle>(
     let mut r = Run::new(oracle, s);
     if cancel.is_cancelled() {
         return Err(Cancelled);
+    }
+    if r.px.n >= preview::FROM_PIXELS {
+        on_frame(&r.preview(cancel)?);
     }
     let (w, h) = (r.px.w, r.px.h);
     let (ids, seeds) = r.analyse();
@@ -220,6 +224,27 @@ impl<'a, O: PixelOracle> Run<'a, O> {
             },
             it: IterationStats::default(),
         }
+    }
+
+    /// A coarse picture of a large image before its analysis ([`preview`]).
+    fn preview(&mut self, cancel: &CancelToken) -> Result<Frame, Cancelled> {
+        let t = Instant::now();
+        let s = self.s;
+        let image = preview::preview(self.oracle, s.samples_per_pixel, s.seed, cancel)?;
+        self.stats.trace_ms += t.elapsed().as_secs_f64() * 1e3;
+        self.finish_stats();
+        let (w, h) = (self.px.w, self.px.h);
+        Ok(Frame {
+            iteration: 0,
+            image,
+            samples: self.px.layer(0),
+            distance: None,
+            classes: Image::filled(w, h, ClassCell::None),
+            objects: Arc::new(Image::filled(w, h, BACKGROUND_ID)),
+            stats: self.stats.clone(),
+            last: false,
+            preview: true,
+        })
     }
 
     /// §4.1: the object-id map (one primary ray per pixel) and the surface normals beside
@@ -430,6 +455,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
             objects: Arc::clone(ids),
             stats: self.stats.clone(),
             last: stop.is_some(),
+            preview: false,
         }
     }
 
@@ -462,6 +488,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
             objects: ids,
             stats: self.stats,
             last: true,
+            preview: false,
         };
         on_frame(&frame);
         Ok(frame)
@@ -547,6 +574,45 @@ mod tests {
         let f =
             run(&o, s, judge, &mut |_| frames += 1, &CancelToken::new()).expect("not cancelled");
         (f, frames)
+    }
+
+    #[test]
+    fn a_large_image_shows_a_preview_before_its_first_iteration() {
+        let o = Fn2(600, 500, |x: u32, y: u32| {
+            Rgb::new(x as f32 * 1e-3, y as f32 * 1e-3, 0.2)
+        });
+        let mut seen = Vec::new();
+        let mut on_frame = |f: &Frame| seen.push((f.iteration, f.preview, f.stats.pixels_traced));
+        let s = settings(Oracle::Perceptual);
+        run(
+            &o,
+            &s,
+            &mut Const(Some(0.0), 0),
+            &mut on_frame,
+            &CancelToken::new(),
+        )
+        .expect("runs");
+        assert_eq!(
+            seen[0],
+            (0, true, 0),
+            "a preview, no pixel of the image traced"
+        );
+        assert_eq!((seen[1].0, seen[1].1), (0, false));
+        assert!(seen[1..].iter().all(|f| !f.1) && seen.len() == 3);
+        let small = Fn2(30, 20, |_: u32, _: u32| Rgb::ZERO);
+        let mut frames = 0;
+        run(
+            &small,
+            &s,
+            &mut Const(Some(0.0), 0),
+            &mut |f| frames += usize::from(f.preview),
+            &CancelToken::new(),
+        )
+        .expect("runs");
+        assert_eq!(
+            frames, 0,
+            "a small image's first frame comes as fast as a preview"
+        );
     }
 
     #[test]
