@@ -252,6 +252,7 @@ async fn one_write_fails(s: &Srv, write: Write) {
 async fn a_fault_at_any_write_ends_cleanly_and_work_resumes_without_a_restart() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
+    std::fs::create_dir_all(&data).unwrap();
     let s = Srv {
         base: String::new(),
         port: free_port(),
