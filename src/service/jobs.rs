@@ -900,6 +900,8 @@ fn worker_loop(inner: &Arc<Inner>) {
         inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
         lock(&inner.live).remove(&id);
         live.settled.send_replace(true);
+        drop(live);
+        super::trim::after_job(&inner.rt);
     }
 }
 

@@ -20,6 +20,7 @@ pub mod metrics;
 pub mod retention;
 pub mod stall;
 pub mod store;
+pub mod trim;
 pub mod viewer;
 pub mod ws;
 
