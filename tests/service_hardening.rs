@@ -330,6 +330,71 @@ async fn a_cancel_during_the_bvh_build_of_a_million_near_duplicates_ends_the_job
     assert!(cancel < Duration::from_secs(1), "{cancel:?}");
 }
 
+/// Sends `request` on a fresh connection and reads the answer until the server closes.
+async fn raw_answer(port: u16, request: &[u8]) -> (u16, Value) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    s.write_all(request).await.unwrap();
+    let mut out = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+        .await
+        .unwrap()
+        .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap();
+    assert!(
+        head.to_ascii_lowercase()
+            .contains("content-type: application/json"),
+        "{head}"
+    );
+    (
+        head[9..12].parse().unwrap(),
+        serde_json::from_str(body).unwrap(),
+    )
+}
+
+/// What hyper answers before any handler (a 414, a repeated Content-Length, a malformed
+/// header) comes in the JSON error shape too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_hyper_gives_itself_have_the_error_shape() {
+    let dir = tempfile::tempdir().unwrap();
+    let (s, _p) = Srv::start(dir.path(), &[], None).await;
+    let long = format!(
+        "GET /v1/jobs/{} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+        "a".repeat(70_000)
+    );
+    let (status, b) = raw_answer(s.port, long.as_bytes()).await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (414, Some("too_large")),
+        "{b}"
+    );
+    let dup = b"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
+                Content-Length: 3\r\nContent-Length: 4\r\n\r\n{}}";
+    let (status, b) = raw_answer(s.port, dup).await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (400, Some("invalid_request")),
+        "{b}"
+    );
+    let (status, b) = raw_answer(
+        s.port,
+        b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nNo colon here\r\n\r\n",
+    )
+    .await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (400, Some("invalid_request")),
+        "{b}"
+    );
+    assert!(b["error"]["message"].as_str().unwrap().contains("HTTP/1.1"));
+    // The server goes on answering.
+    let r = s.c.get(s.url("/healthz")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn without_a_token_cross_site_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();
