@@ -17,8 +17,8 @@ if [ -z "${GLIMPSE_TEST_DATABASE_URL:-}" ]; then
   export GLIMPSE_TEST_DATABASE_URL
 fi
 cargo test --no-fail-fast
-# The service contract and durability tests once more, on PostgreSQL (cluster.md).
-GLIMPSE_TEST_BACKEND=postgres cargo test --no-fail-fast --test service_api --test service_durability
+# The service contract, durability and storage-fault tests once more, on PostgreSQL (cluster.md).
+GLIMPSE_TEST_BACKEND=postgres cargo test --no-fail-fast --test service_api --test service_durability --test service_faults
 
 if [ -f tests/browser/run.sh ] && [ "${GLIMPSE_SKIP_BROWSER:-0}" != 1 ]; then
   bash tests/browser/run.sh

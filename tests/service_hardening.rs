@@ -236,6 +236,165 @@ async fn a_million_identical_triangles_render_and_near_duplicates_cancel_promptl
     assert!(cancel < Duration::from_secs(3), "{cancel:?}");
 }
 
+/// A `.glb` of a million near-duplicate triangles (every triple of 200 vertices a hair
+/// apart; u16 indices keep it at 6 MB): its BVH takes seconds to build, and a cancel
+/// during that build ends the job within a second.
+fn near_duplicates_glb(triangles: usize) -> Vec<u8> {
+    let mut bin = Vec::new();
+    let corners = [[-1f32, -1.0], [1.0, -1.0], [0.0, 1.0]];
+    for k in 0..200u16 {
+        let [x, y] = corners[usize::from(k) % 3];
+        for c in [x, y, f32::from(k) * 1e-6] {
+            bin.extend(c.to_le_bytes());
+        }
+    }
+    let positions = bin.len();
+    let triples = (0..200u16)
+        .flat_map(|a| (a + 1..200).flat_map(move |b| (b + 1..200).map(move |c| [a, b, c])));
+    for t in triples.take(triangles) {
+        for i in t {
+            bin.extend(i.to_le_bytes());
+        }
+    }
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0,1]}}],
+        "nodes":[{{"mesh":0}},{{"camera":0,"translation":[0,0,4]}}],
+        "cameras":[{{"type":"perspective","perspective":{{"yfov":0.8,"znear":0.1,"aspectRatio":1.0}}}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":200,"type":"VEC3","min":[-1,-1,0],"max":[1,1,0.001]}},
+                     {{"bufferView":1,"componentType":5123,"count":{n},"type":"SCALAR"}}],
+        "bufferViews":[{{"buffer":0,"byteLength":{positions}}},{{"buffer":0,"byteOffset":{positions},"byteLength":{ilen}}}],
+        "buffers":[{{"byteLength":{total}}}]}}"#,
+        n = triangles * 3,
+        ilen = bin.len() - positions,
+        total = bin.len()
+    );
+    let mut j = json.into_bytes();
+    while j.len() % 4 != 0 {
+        j.push(b' ');
+    }
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let mut out = b"glTF".to_vec();
+    out.extend(2u32.to_le_bytes());
+    out.extend(((12 + 8 + j.len() + 8 + bin.len()) as u32).to_le_bytes());
+    out.extend((j.len() as u32).to_le_bytes());
+    out.extend(0x4E4F_534Au32.to_le_bytes());
+    out.extend(j);
+    out.extend((bin.len() as u32).to_le_bytes());
+    out.extend(0x004E_4942u32.to_le_bytes());
+    out.extend(bin);
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancel_during_the_bvh_build_of_a_million_near_duplicates_ends_the_job_within_a_second() {
+    let dir = tempfile::tempdir().unwrap();
+    let (s, _p) = Srv::start(dir.path(), &[], None).await;
+    let r =
+        s.c.post(s.url("/v1/jobs"))
+            .header("content-type", "model/gltf-binary")
+            .body(near_duplicates_glb(1_000_000))
+            .send()
+            .await
+            .unwrap();
+    assert_eq!(r.status(), 201, "{:?}", r.text().await);
+    let id = r.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    s.until(&id, &["running"], Duration::from_secs(30)).await;
+    // Well inside the preparation (seconds), before the first frame.
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    assert!(s.job(&id).await["progress"].is_null(), "already rendering");
+    let t = Instant::now();
+    let r =
+        s.c.post(s.url(&format!("/v1/jobs/{id}/cancel")))
+            .send()
+            .await
+            .unwrap();
+    assert_eq!(r.status(), 202);
+    let j = s
+        .until(
+            &id,
+            &["cancelled", "succeeded", "failed"],
+            Duration::from_secs(30),
+        )
+        .await;
+    let cancel = t.elapsed();
+    eprintln!(
+        "1 M near-duplicate triangles: cancelled {cancel:?} after the cancel, while preparing"
+    );
+    assert_eq!(j["state"], "cancelled", "{j}");
+    assert!(cancel < Duration::from_secs(1), "{cancel:?}");
+}
+
+/// Sends `request` on a fresh connection and reads the answer until the server closes.
+async fn raw_answer(port: u16, request: &[u8]) -> (u16, Value) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .unwrap();
+    s.write_all(request).await.unwrap();
+    let mut out = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+        .await
+        .unwrap()
+        .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap();
+    assert!(
+        head.to_ascii_lowercase()
+            .contains("content-type: application/json"),
+        "{head}"
+    );
+    (
+        head[9..12].parse().unwrap(),
+        serde_json::from_str(body).unwrap(),
+    )
+}
+
+/// What hyper answers before any handler (a 414, a repeated Content-Length, a malformed
+/// header) comes in the JSON error shape too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn answers_hyper_gives_itself_have_the_error_shape() {
+    let dir = tempfile::tempdir().unwrap();
+    let (s, _p) = Srv::start(dir.path(), &[], None).await;
+    let long = format!(
+        "GET /v1/jobs/{} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
+        "a".repeat(70_000)
+    );
+    let (status, b) = raw_answer(s.port, long.as_bytes()).await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (414, Some("too_large")),
+        "{b}"
+    );
+    let dup = b"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
+                Content-Length: 3\r\nContent-Length: 4\r\n\r\n{}}";
+    let (status, b) = raw_answer(s.port, dup).await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (400, Some("invalid_request")),
+        "{b}"
+    );
+    let (status, b) = raw_answer(
+        s.port,
+        b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nNo colon here\r\n\r\n",
+    )
+    .await;
+    assert_eq!(
+        (status, b["error"]["code"].as_str()),
+        (400, Some("invalid_request")),
+        "{b}"
+    );
+    assert!(b["error"]["message"].as_str().unwrap().contains("HTTP/1.1"));
+    // The server goes on answering.
+    let r = s.c.get(s.url("/healthz")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn without_a_token_cross_site_requests_are_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -11,6 +11,9 @@ pub enum ErrorCode {
     InvalidJson,
     InvalidScene,
     InvalidParameter,
+    /// Not valid HTTP/1.1 (a malformed header, a repeated `Content-Length`): hyper's own
+    /// answer, given the error body by `parse_error`.
+    InvalidRequest,
     TooLarge,
     NotFound,
     MethodNotAllowed,
@@ -42,7 +45,9 @@ impl ErrorCode {
     #[must_use]
     pub fn status(self) -> StatusCode {
         match self {
-            ErrorCode::InvalidJson | ErrorCode::InvalidParameter => StatusCode::BAD_REQUEST,
+            ErrorCode::InvalidJson | ErrorCode::InvalidParameter | ErrorCode::InvalidRequest => {
+                StatusCode::BAD_REQUEST
+            }
             ErrorCode::InvalidScene => StatusCode::UNPROCESSABLE_ENTITY,
             ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             ErrorCode::NotFound => StatusCode::NOT_FOUND,

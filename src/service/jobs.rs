@@ -13,6 +13,7 @@
 
 use super::error_code::ErrorCode;
 use super::metrics::Metrics;
+use super::store::health::WriteFaults;
 use super::store::{self, JobError, JobRecord, JobState, Layer, Progress, Store, StoreError};
 use crate::cancel::CancelToken;
 use crate::progressive::eta::{Eta, EtaTracker};
@@ -388,15 +389,9 @@ pub fn render_scene(
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, crate::cancel::Cancelled> {
-    // Preparing the scene (the BVH: ~1 s for the largest mesh a request may hold, a
-    // million triangles) cannot stop midway; a cancel is seen on either side of it.
-    if cancel.is_cancelled() {
-        return Err(crate::cancel::Cancelled);
-    }
-    let tracer = PathTracer::new(scene);
-    if cancel.is_cancelled() {
-        return Err(crate::cancel::Cancelled);
-    }
+    // Preparing the scene (seconds for the largest mesh a request may hold, a million
+    // near-duplicate triangles) stops within a fraction of a second of a cancel.
+    let tracer = PathTracer::prepare(scene, cancel)?;
     progressive::render(scene, &tracer, &RenderOptions::default(), on_frame, cancel)
 }
 
@@ -411,9 +406,9 @@ struct Inner {
     shutting_down: AtomicBool,
     /// A render running longer than this is stopped and its job failed (`timeout`).
     job_timeout: std::time::Duration,
-    /// The last store or job-file write that failed, until one succeeds again (a full
-    /// or unwritable disk): `/healthz` reports it and submissions get 503.
-    store_fault: Mutex<Option<String>>,
+    /// The kinds of store and job-file writes failing now (a full or unwritable disk):
+    /// `/healthz` reports them.
+    store_faults: WriteFaults,
     workers: Mutex<Vec<std::thread::JoinHandle<()>>>,
     /// Test hook, called by the worker between a job's `done` and its late file writes
     /// (to hold it there and look at what a crash at that point would leave).
@@ -424,30 +419,26 @@ type AfterDoneHook = Arc<dyn Fn(Uuid) + Send + Sync>;
 
 impl Inner {
     /// Records a failed store or file write (the disk may be full).
-    fn write_failed(&self, what: &str, e: &dyn std::fmt::Display) {
-        tracing::error!("{what}: {e}");
-        *lock(&self.store_fault) = Some(format!("{what}: {e}"));
+    fn write_failed(&self, what: &'static str, e: &dyn std::fmt::Display) {
+        self.store_faults.failed(what, e);
     }
 
-    /// A write succeeded: whatever failed before works again.
-    fn wrote(&self) {
-        let mut f = lock(&self.store_fault);
-        if f.take().is_some() {
-            tracing::info!("the store is writable again");
-        }
+    /// A write of kind `what` succeeded: that kind works again.
+    fn wrote(&self, what: &'static str) {
+        self.store_faults.succeeded(what);
     }
 
     /// Runs a blocking `write` until it succeeds, pausing [`WRITE_RETRY`] after each
     /// failure (recorded as the store's fault); false if the server stops meanwhile.
     fn write_until_done<E: std::fmt::Display>(
         &self,
-        what: &str,
+        what: &'static str,
         mut write: impl FnMut() -> Result<(), E>,
     ) -> bool {
         loop {
             match write() {
                 Ok(()) => {
-                    self.wrote();
+                    self.wrote(what);
                     return true;
                 }
                 Err(e) => self.write_failed(what, &e),
@@ -521,7 +512,7 @@ impl Jobs {
             rt: tokio::runtime::Handle::current(),
             shutting_down: AtomicBool::new(false),
             job_timeout,
-            store_fault: Mutex::new(None),
+            store_faults: WriteFaults::default(),
             workers: Mutex::new(Vec::new()),
             after_done: Mutex::new(None),
         });
@@ -547,10 +538,10 @@ impl Jobs {
         Ok(Self { inner })
     }
 
-    /// What is wrong with the store's disk, if its last write failed.
+    /// What is wrong with the store's disk: the kinds of writes failing now.
     #[must_use]
     pub fn store_fault(&self) -> Option<String> {
-        lock(&self.inner.store_fault).clone()
+        self.inner.store_faults.current()
     }
 
     /// Jobs in the store by state (for `/metrics`).
@@ -687,7 +678,7 @@ impl Jobs {
         let id = Uuid::now_v7();
         let rec = match inner.store.insert(id, name, scene_json).await {
             Ok(r) => {
-                inner.wrote();
+                inner.wrote("storing a new job");
                 r
             }
             Err(e) => {
@@ -775,13 +766,26 @@ impl Jobs {
             self.inner.write_failed("recording a cancel", &e);
             return Err(e);
         }
+        self.inner.wrote("recording a cancel");
         let live = self.live(id);
         if let Some(l) = &live {
             // Flag first, then the token: the worker reads the flag after seeing the token.
             l.user_cancelled.store(true, Ordering::SeqCst);
             l.cancel.cancel();
         }
-        if self.inner.store.cancel_queued(id).await? {
+        let cancelled_queued = match self.inner.store.cancel_queued(id).await {
+            Ok(c) => {
+                self.inner.wrote("cancelling a queued job");
+                c
+            }
+            Err(e) => {
+                // The cancel is recorded and the token set: the worker that takes the
+                // job finishes it as cancelled (`finish_cancelled_in_queue`).
+                self.inner.write_failed("cancelling a queued job", &e);
+                false
+            }
+        };
+        if cancelled_queued {
             // It never started: finished now, and its queue slot is free at once.
             self.inner.queue.remove(id);
             tracing::info!(%id, state = "cancelled", ms = 0u64, "job finished (cancelled while queued)");
@@ -811,10 +815,19 @@ impl Jobs {
             drop(live);
             let _ = settled.wait_for(|s| *s).await;
         }
-        if self.inner.store.delete_finished(id).await? {
-            Ok(DeleteOutcome::Deleted)
-        } else {
-            Ok(DeleteOutcome::NotFound)
+        match self.inner.store.delete_finished(id).await {
+            Ok(deleted) => {
+                self.inner.wrote("deleting a job");
+                Ok(if deleted {
+                    DeleteOutcome::Deleted
+                } else {
+                    DeleteOutcome::NotFound
+                })
+            }
+            Err(e) => {
+                self.inner.write_failed("deleting a job", &e);
+                Err(e)
+            }
         }
     }
 
@@ -849,7 +862,11 @@ fn worker_loop(inner: &Arc<Inner>) {
             continue;
         };
         if live.cancel.is_cancelled() {
-            continue; // cancelled while queued (the store already says so)
+            // A user's cancel (a shutdown's leaves the job queued for the restart).
+            if live.user_cancelled.load(Ordering::SeqCst) {
+                finish_cancelled_in_queue(inner, &live);
+            }
+            continue;
         }
         // `running`, with the attempt counted, is committed before the render starts: a
         // job that takes the server down is then known at the next start-up and stopped
@@ -857,7 +874,7 @@ fn worker_loop(inner: &Arc<Inner>) {
         // (0.6-4 ms on the test machine) before the first frame.
         let started = store::now_rfc3339();
         match inner.rt.block_on(inner.store.mark_running_at(id, &started)) {
-            Ok(true) => inner.wrote(),
+            Ok(true) => inner.wrote("starting a job"),
             Ok(false) => {
                 // Left `queued` meanwhile (a cancel won the race and recorded it).
                 lock(&inner.live).remove(&id);
@@ -884,7 +901,31 @@ fn worker_loop(inner: &Arc<Inner>) {
         inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
         lock(&inner.live).remove(&id);
         live.settled.send_replace(true);
+        drop(live);
+        super::trim::after_job(&inner.rt);
     }
+}
+
+/// A job whose cancel was acknowledged while it waited: its record says `cancelled`
+/// before it leaves the live jobs (the cancel's own write may have failed on a full
+/// disk, which would otherwise leave it `queued` in the store and in no queue).
+fn finish_cancelled_in_queue(inner: &Arc<Inner>, live: &Arc<LiveJob>) {
+    let id = live.id;
+    let mut cancelled = false;
+    let stored = inner.write_until_done("cancelling a queued job", || {
+        inner
+            .rt
+            .block_on(inner.store.cancel_queued(id))
+            .map(|c| cancelled = c)
+    });
+    if stored && cancelled {
+        tracing::info!(%id, state = "cancelled", ms = 0u64, "job finished (cancelled while queued)");
+        if let Ok(Some(rec)) = inner.rt.block_on(inner.store.get(id)) {
+            live.publish(rec, None);
+        }
+    }
+    lock(&inner.live).remove(&id);
+    live.settled.send_replace(true);
 }
 
 enum Outcome {
@@ -1007,9 +1048,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         Ok(r) => r.map_err(|e| e.to_string()),
         Err(e) => Err(e.to_string()),
     };
-    if let Err(e) = &prepared {
+    match &prepared {
+        Ok(()) => inner.wrote("preparing a job's folder"),
         // Not fatal: the final image then goes through temp file + rename + folder sync.
-        tracing::warn!(%id, "cannot prepare the job folder: {e}");
+        Err(e) => inner.write_failed("preparing a job's folder", e),
     }
 
     let (state, stats, error, final_frame) = match outcome {
@@ -1119,8 +1161,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         hook(id);
     }
     if let (true, Some(lf)) = (has_frame, &final_frame) {
-        if let Err(e) = write_secondary_files(&job_dir, lf) {
-            tracing::error!(%id, "cannot store the frame's other layers: {e}");
+        // Not retried: `DELETE` waits for these writes, and must free space on a full disk.
+        match write_secondary_files(&job_dir, lf) {
+            Ok(()) => inner.wrote("storing a frame's other layers"),
+            Err(e) => inner.write_failed("storing a frame's other layers", &e),
         }
     }
 }

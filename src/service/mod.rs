@@ -17,9 +17,11 @@ pub mod examples;
 pub mod http;
 pub mod jobs;
 pub mod metrics;
+pub mod parse_error;
 pub mod retention;
 pub mod stall;
 pub mod store;
+pub mod trim;
 pub mod viewer;
 pub mod ws;
 
@@ -255,7 +257,10 @@ async fn serve(
         let service = hyper_util::service::TowerToHyperService::new(app.clone());
         let conn = http
             .serve_connection(
-                TokioIo::new(stall::StallLimit::new(stream, client_stall)),
+                TokioIo::new(parse_error::JsonParseErrors::new(stall::StallLimit::new(
+                    stream,
+                    client_stall,
+                ))),
                 service,
             )
             .with_upgrades();

@@ -3,6 +3,7 @@
 //! The rest of the tracer sees only [`Geometry::intersect`], [`Geometry::occluded`] and
 //! [`Geometry::surface`] (STYLE.md: "keep obvhs behind `tracer::bvh`").
 
+use crate::cancel::{CancelToken, Cancelled};
 use crate::scene::{MaterialId, ObjectId, Scene, Shape};
 use glam::{Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
@@ -84,6 +85,18 @@ impl Geometry {
     /// is filled in later by the light module through [`Geometry::info`].
     #[must_use]
     pub fn build(scene: &Scene) -> Self {
+        match Self::prepare(scene, &CancelToken::new()) {
+            Ok(g) => g,
+            Err(Cancelled) => unreachable!("a fresh token is never cancelled"),
+        }
+    }
+
+    /// [`Self::build`], stopping with `Err(Cancelled)` within a fraction of a second of a
+    /// cancel: the token is polled between phases and every [`CHECK_EVERY`] triangles,
+    /// and a large BVH (one call into obvhs that cannot stop: ~3 s for a million
+    /// near-duplicate triangles) is built on a thread of its own that is abandoned on a
+    /// cancel ([`crate::cancel::abandonable`]).
+    pub fn prepare(scene: &Scene, cancel: &CancelToken) -> Result<Self, Cancelled> {
         let mut prims = Vec::new();
         let mut info: Vec<PrimInfo> = Vec::new();
         let mut normals = Vec::new();
@@ -116,7 +129,10 @@ impl Geometry {
                     triangles,
                     material,
                 } => {
-                    for t in triangles {
+                    for (k, t) in triangles.iter().enumerate() {
+                        if k % CHECK_EVERY == 0 {
+                            cancel.check()?;
+                        }
                         let e1 = t.p[1] - t.p[0];
                         let e2 = t.p[2] - t.p[0];
                         // Validation drops degenerate triangles; this guards any that slip
@@ -159,7 +175,9 @@ impl Geometry {
                 }
             }
         }
-        let (mut prims, mut info) = without_duplicates(prims, info);
+        cancel.check()?;
+        let (mut prims, mut info) = without_duplicates(prims, info, cancel)?;
+        cancel.check()?;
         let aabbs: Vec<Aabb> = prims
             .iter()
             .enumerate()
@@ -178,18 +196,19 @@ impl Geometry {
         let bvh = if prims.is_empty() {
             None
         } else {
-            let bvh = obvhs::cwbvh::builder::build_cwbvh(
-                &aabbs,
-                BvhBuildParams::medium_build(),
-                &mut std::time::Duration::default(),
-            );
+            let bvh = if aabbs.len() < BUILD_ON_ITS_OWN_THREAD {
+                build_cwbvh(&aabbs)
+            } else {
+                crate::cancel::abandonable(cancel, move || build_cwbvh(&aabbs))?
+            };
+            cancel.check()?;
             // Reorder primitives to the BVH's leaf order (obvhs examples/cornell_box_cwbvh.rs).
             let order = &bvh.primitive_indices;
             prims = order.iter().map(|&i| prims[i as usize]).collect();
             info = order.iter().map(|&i| info[i as usize]).collect();
             Some(bvh)
         };
-        Self {
+        Ok(Self {
             bvh,
             prims,
             info,
@@ -197,7 +216,7 @@ impl Geometry {
             uvs,
             bounds_center,
             bounds_radius,
-        }
+        })
     }
 
     /// Closest hit along `o + t·d` (`d` unit) with `t < tmax`, ignoring a hit on `skip`
@@ -332,6 +351,21 @@ fn r_o(v: Vec3) -> Vec3A {
     v.into()
 }
 
+/// Triangles collected between two looks at the cancel token (~1 ms of work).
+const CHECK_EVERY: usize = 1 << 14;
+
+/// Boxes from which the BVH is built on a thread of its own (cancellable): below this it
+/// takes well under 0.1 s, less than starting a thread would matter for but no reason to.
+const BUILD_ON_ITS_OWN_THREAD: usize = 50_000;
+
+fn build_cwbvh(aabbs: &[Aabb]) -> CwBvh {
+    obvhs::cwbvh::builder::build_cwbvh(
+        aabbs,
+        BvhBuildParams::medium_build(),
+        &mut std::time::Duration::default(),
+    )
+}
+
 fn prim_aabb(p: &Prim) -> Aabb {
     match *p {
         Prim::Tri { v0, e1, e2 } => Aabb::from_points(&[v0, v0 + e1, v0 + e2]),
@@ -347,7 +381,11 @@ fn prim_aabb(p: &Prim) -> Aabb {
 /// bounding box can separate coincident triangles: 32² pixels at one sample took 47 s.
 /// Coincident emitters were also counted once per copy by light sampling. Spheres and
 /// triangles that differ in any bit are kept.
-fn without_duplicates(prims: Vec<Prim>, info: Vec<PrimInfo>) -> (Vec<Prim>, Vec<PrimInfo>) {
+fn without_duplicates(
+    prims: Vec<Prim>,
+    info: Vec<PrimInfo>,
+    cancel: &CancelToken,
+) -> Result<(Vec<Prim>, Vec<PrimInfo>), Cancelled> {
     let key = |p: &Prim, i: &PrimInfo| match *p {
         Prim::Tri { v0, e1, e2 } => {
             let mut k = [0u32; 10];
@@ -360,11 +398,18 @@ fn without_duplicates(prims: Vec<Prim>, info: Vec<PrimInfo>) -> (Vec<Prim>, Vec<
         Prim::Sphere { .. } => None,
     };
     let mut seen = std::collections::HashSet::with_capacity(prims.len());
-    prims
-        .into_iter()
-        .zip(info)
-        .filter(|(p, i)| key(p, i).is_none_or(|k| seen.insert(k)))
-        .unzip()
+    let (mut kept, mut kept_info) = (Vec::with_capacity(prims.len()), Vec::new());
+    kept_info.reserve(prims.len());
+    for (n, (p, i)) in prims.into_iter().zip(info).enumerate() {
+        if n % CHECK_EVERY == 0 {
+            cancel.check()?;
+        }
+        if key(&p, &i).is_none_or(|k| seen.insert(k)) {
+            kept.push(p);
+            kept_info.push(i);
+        }
+    }
+    Ok((kept, kept_info))
 }
 
 /// `aabb` grown by a tiny amount that differs from primitive to primitive: at most

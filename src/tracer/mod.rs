@@ -312,8 +312,19 @@ impl PathTracer {
     /// Prepares `scene` for tracing: builds the BVH and decides which code paths it needs.
     #[must_use]
     pub fn new(scene: &Scene) -> Self {
-        let mut geo = bvh::Geometry::build(scene);
+        match Self::prepare(scene, &CancelToken::new()) {
+            Ok(t) => t,
+            Err(Cancelled) => unreachable!("a fresh token is never cancelled"),
+        }
+    }
+
+    /// [`Self::new`], ending with `Err(Cancelled)` soon after `cancel` is (the BVH build
+    /// of a large mesh takes seconds: [`bvh::Geometry::prepare`]).
+    pub fn prepare(scene: &Scene, cancel: &CancelToken) -> Result<Self, Cancelled> {
+        let mut geo = bvh::Geometry::prepare(scene, cancel)?;
+        cancel.check()?;
         let lights = light::Lights::build(scene, &mut geo);
+        cancel.check()?;
         let materials: Vec<ResolvedMaterial> = scene
             .materials
             .iter()
@@ -425,7 +436,7 @@ impl PathTracer {
         };
         let camera = camera::Pinhole::new(&scene.camera, scene.width, scene.height);
         let primary = primary::CameraRays::build(&geo, &camera, scene.width, scene.height);
-        Self {
+        Ok(Self {
             width: scene.width,
             height: scene.height,
             camera,
@@ -439,7 +450,7 @@ impl PathTracer {
             seed: scene.render.seed,
             features,
             dropped: AtomicU64::new(0),
-        }
+        })
     }
 
     /// The flags decided at preparation.

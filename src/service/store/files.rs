@@ -3,6 +3,7 @@
 //! job. File names derive from the job id (a parsed UUID) and [`super::Layer`] only,
 //! never from user input, so no request can choose a path.
 
+use super::fault::{self, Write};
 use std::path::Path;
 
 /// The file the final image goes to, created empty while the job renders (see
@@ -16,6 +17,7 @@ pub const FINAL_IMAGE_FILE: &str = "image.png";
 /// on the path between a render's end and its `done`). The empty file is never served:
 /// the record says `has_frame` only after the image is written into it.
 pub fn prepare_job_dir_blocking(dir: &Path) -> std::io::Result<()> {
+    fault::check(Write::PrepareDir)?;
     std::fs::create_dir_all(dir)?;
     std::fs::File::create(dir.join(FINAL_IMAGE_FILE))?;
     std::fs::File::open(dir)?.sync_all()?;
@@ -33,7 +35,8 @@ pub fn prepare_job_dir_blocking(dir: &Path) -> std::io::Result<()> {
 /// per run of a job, before the record says `has_frame`; a crash during the write leaves
 /// a job that is not finished in the store, so it runs again and nobody reads the file.
 pub fn write_final_image_blocking(dir: &Path, png: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
+    use std::io::Write as _;
+    fault::check(Write::FinalImage)?;
     match std::fs::OpenOptions::new()
         .write(true)
         .truncate(true)
@@ -57,7 +60,8 @@ pub fn write_files_blocking<B: AsRef<[u8]> + Sync>(
     files: &[(String, B)],
 ) -> std::io::Result<()> {
     use rayon::prelude::*;
-    use std::io::Write;
+    use std::io::Write as _;
+    fault::check(Write::Layers)?;
     if !dir.exists() {
         std::fs::create_dir_all(dir)?;
         // The folder's own name must survive a crash too, not only the files in it.

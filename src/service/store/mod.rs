@@ -6,7 +6,9 @@
 //!
 //! - [`record`]: the typed records ([`JobRecord`], [`Progress`], [`JobError`], [`Layer`]);
 //! - [`sqlite`], [`postgres`]: opening each backend (its settings, its migrations);
-//! - [`files`]: the image files of finished jobs beside the database (`<data>/jobs/<id>/`).
+//! - [`files`]: the image files of finished jobs beside the database (`<data>/jobs/<id>/`);
+//! - [`fault`]: storage faults injected at any of these writes, for tests; [`health`]:
+//!   which kinds of writes are failing now.
 //!
 //! service-api.md "Durability": a job is inserted (and the transaction committed, with
 //! `synchronous = FULL` on SQLite) before the `201` leaves; at start-up [`Store::recover`]
@@ -15,7 +17,9 @@
 //! EXR are written after (`jobs.rs`), so a crash in between leaves a finished job with its
 //! state, statistics and image, whose other layers answer 404.
 
+pub mod fault;
 mod files;
+pub mod health;
 mod postgres;
 mod record;
 mod sqlite;
@@ -176,6 +180,7 @@ impl Store {
     /// Marks a queued or running job's cancel request durably (before its `202`); false
     /// if the job is not queued or running any more.
     pub async fn request_cancel(&self, id: Uuid) -> Result<bool, StoreError> {
+        fault::check(fault::Write::RequestCancel)?;
         let q =
             "UPDATE jobs SET cancel_requested = 1 WHERE id = $1 AND state IN ('queued', 'running')";
         let r = on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
@@ -193,6 +198,7 @@ impl Store {
     }
 
     pub async fn insert(&self, id: Uuid, name: &str, scene: &str) -> Result<JobRecord, StoreError> {
+        fault::check(fault::Write::Insert)?;
         let created = now_rfc3339();
         let q = "INSERT INTO jobs (id, name, state, scene, created_at) VALUES ($1, $2, 'queued', $3, $4)";
         on_pool!(self, p => sqlx::query(q)
@@ -288,6 +294,7 @@ impl Store {
     /// before the render starts: see [`MAX_ATTEMPTS`]); false if the job was no longer
     /// queued.
     pub async fn mark_running_at(&self, id: Uuid, started: &str) -> Result<bool, StoreError> {
+        fault::check(fault::Write::Start)?;
         let q = "UPDATE jobs SET state = 'running', started_at = $1, progress = NULL, attempts = attempts + 1 WHERE id = $2 AND state = 'queued'";
         let r = on_pool!(self, p => sqlx::query(q).bind(started).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
         Ok(r == 1)
@@ -295,6 +302,7 @@ impl Store {
 
     /// queued → cancelled; false if the job had left `queued`.
     pub async fn cancel_queued(&self, id: Uuid) -> Result<bool, StoreError> {
+        fault::check(fault::Write::CancelQueued)?;
         let q = "UPDATE jobs SET state = 'cancelled', finished_at = $1 WHERE id = $2 AND state = 'queued'";
         let r = on_pool!(self, p => sqlx::query(q).bind(now_rfc3339()).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
         Ok(r == 1)
@@ -310,6 +318,7 @@ impl Store {
         error: Option<&JobError>,
         has_frame: bool,
     ) -> Result<String, StoreError> {
+        fault::check(fault::Write::Finish)?;
         let finished = now_rfc3339();
         let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6 WHERE id = $7";
         on_pool!(self, p => sqlx::query(q)
@@ -329,6 +338,7 @@ impl Store {
     /// running → queued (graceful shutdown: the job runs again from the start next time;
     /// the interrupted attempt does not count against it).
     pub async fn requeue(&self, id: Uuid) -> Result<(), StoreError> {
+        fault::check(fault::Write::Requeue)?;
         let q = "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL, attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END WHERE id = $1 AND state = 'running'";
         on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
         Ok(())
@@ -341,6 +351,7 @@ impl Store {
     /// Returns every queued id, oldest first, to be enqueued again; a row whose id is not
     /// a UUID is failed and named in the log, not a reason to refuse to start.
     pub async fn recover(&self) -> Result<Vec<Uuid>, StoreError> {
+        fault::check(fault::Write::Recover)?;
         let now = now_rfc3339();
         let q = "UPDATE jobs SET state = 'cancelled', finished_at = $1 WHERE state IN ('queued', 'running') AND cancel_requested = 1";
         on_pool!(self, p => sqlx::query(q).bind(&now).execute(p).await.map(|r| r.rows_affected()))?;
@@ -393,11 +404,13 @@ impl Store {
             return Ok(false);
         }
         let dir = self.job_dir(id);
+        fault::check(fault::Write::RemoveDir)?;
         match tokio::fs::remove_dir_all(&dir).await {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
             Err(e) => return Err(e.into()),
         }
+        fault::check(fault::Write::Delete)?;
         let q = "DELETE FROM jobs WHERE id = $1 AND state IN ('succeeded', 'failed', 'cancelled')";
         let r = on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
         Ok(r == 1)
