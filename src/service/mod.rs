@@ -15,6 +15,7 @@ pub mod auth;
 pub mod error_code;
 pub mod examples;
 pub mod http;
+pub mod iterations;
 pub mod jobs;
 pub mod metrics;
 pub mod retention;
