@@ -264,7 +264,7 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(dir) = &a.layers {
-        write_layers(dir, &frame)?;
+        write_layers(dir, &frame, scene.display.exposure)?;
     }
     if let Some(e) = iterations.and_then(|f| f.error) {
         return Err(e);
@@ -396,9 +396,17 @@ impl IterationFiles {
     }
 }
 
-fn write_layers(dir: &std::path::Path, frame: &progressive::Frame) -> anyhow::Result<()> {
+/// The last frame's layers; the image as on the scene's display, like `--output`'s PNG.
+fn write_layers(
+    dir: &std::path::Path,
+    frame: &progressive::Frame,
+    exposure: f32,
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    for (name, png) in progressive::layers::encode_all(frame)? {
+    for name in progressive::layers::LAYERS {
+        let Some(png) = progressive::layers::encode_layer(frame, name, exposure)? else {
+            continue;
+        };
         let p = dir.join(format!("{name}.png"));
         std::fs::write(&p, png).with_context(|| format!("cannot write {}", p.display()))?;
     }
