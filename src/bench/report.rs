@@ -586,33 +586,35 @@ fn in_short(study: &Study) -> String {
         let mut times: Vec<f64> = conds.iter().map(|c| c.time_ratio).collect();
         let mut qs: Vec<f64> = conds.iter().map(|c| c.q).collect();
         format!(
-            "On {n} of {of} {what} the progressive picture was at least as close to the truth \
+            "on {n} of {of} {what} the progressive picture was at least as close to the truth \
              as the reference, in at most {TIME_TARGET}× its time (median {:.2}× the \
-             reference's time, median Q {:.2}).",
+             reference's time, median Q {:.2})",
             median(&mut times),
             median(&mut qs)
         )
     };
-    let mut out = String::from("In short: ");
+    let mut parts = Vec::new();
     let bundled: Vec<&Condition> = study.scenes.iter().flat_map(|r| &r.conditions).collect();
     if !bundled.is_empty() {
-        out.push_str(&sentence(
+        parts.push(sentence(
             "bundled scene and viewing-distance pairs",
             &bundled,
         ));
     }
     let corpus: Vec<&Condition> = study.corpus.iter().map(|r| &r.conditions[0]).collect();
     if !corpus.is_empty() {
-        if !bundled.is_empty() {
-            out.push(' ');
-        }
-        out.push_str(&sentence(
+        parts.push(sentence(
             "generated scenes (at their own viewing distance)",
             &corpus,
         ));
     }
-    out.push_str(" The table says which of issue 13's targets this run met.");
-    out
+    if parts.is_empty() {
+        return "In short: nothing was judged.".into();
+    }
+    format!(
+        "In short: {}. The table says which of issue 13's targets this run met.",
+        parts.join("; ")
+    )
 }
 
 /// The t0 sweep as a table: one row per scene and condition, one cell per t0.
