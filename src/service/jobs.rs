@@ -643,11 +643,18 @@ impl Jobs {
         layer: Layer,
     ) -> Result<FrameLookup, StoreError> {
         let live = self.live(id);
-        let live_iteration = live
-            .as_ref()
-            .and_then(|l| l.snapshot().frame.as_ref().map(|f| f.frame.iteration));
-        if live_iteration == Some(iteration) {
-            return self.frame(id, layer, false).await;
+        // The live frame itself (not "the latest" looked up again, which may have moved on).
+        let live_frame = live.as_ref().and_then(|l| l.snapshot().frame.clone());
+        if let Some(lf) = live_frame.filter(|f| f.frame.iteration == iteration) {
+            let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, false))
+                .await
+                .map_err(|e| e.to_string())
+                .and_then(|r| r);
+            return Ok(match encoded {
+                Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
+                Ok(None) => FrameLookup::NoLayer,
+                Err(e) => FrameLookup::EncodingFailed(e),
+            });
         }
         let path = store::iteration_path(&self.inner.store.job_dir(id), iteration, layer);
         if tokio::fs::try_exists(&path).await? {
