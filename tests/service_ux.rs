@@ -224,8 +224,8 @@ async fn earlier_iterations_are_kept_with_layers_that_still_show_the_method() {
         .iter()
         .map(|i| i["iteration"].as_u64().unwrap())
         .collect();
-    // A frame is skipped only if the writer is a whole iteration behind; the first and
-    // the final are there in any case.
+    // A frame is skipped only if the frames waiting for the writer already hold 4 Mpixels
+    // (never at 256²); the first and the final are there in any case.
     assert!(numbers.len() >= 3, "{listed:?}");
     assert_eq!((numbers[0], *numbers.last().unwrap()), (0, last));
     let frame = |n: u64, layer: &str| {

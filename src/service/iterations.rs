@@ -13,7 +13,8 @@
 use super::jobs::LiveFrame;
 use super::store::{self, Layer};
 use std::path::PathBuf;
-use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{channel, Sender};
 use std::sync::Arc;
 
 /// At most this many earlier iterations are kept per job.
@@ -65,23 +66,27 @@ pub fn to_forget(kept: &[Kept], max_count: usize, max_bytes: u64) -> Vec<u32> {
 /// Keeps the earlier iterations of one running job (see the module's comment). Dropping
 /// it waits until every frame it accepted is written.
 pub struct Keeper {
-    tx: Option<SyncSender<Arc<LiveFrame>>>,
+    tx: Option<Sender<Arc<LiveFrame>>>,
+    /// Pixels of the frames waiting for the writer.
+    waiting: Arc<AtomicUsize>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
-/// Frames waiting for the writer. A frame that arrives while one waits is not kept: the
-/// render never waits for the disk, and memory stays bounded (a waiting frame is a copy
-/// of the image and its layers, ~300 MB at 4096²). Iterations take 50 ms at 320×240 and
-/// seconds at 2048², the writer a few milliseconds to a few hundred, so in practice none
-/// is skipped.
-const QUEUED: usize = 1;
+/// Pixels of frames that may wait for the writer (a waiting frame is a copy of the image
+/// and its layers, ~18 bytes a pixel: 72 MB here). A frame that would go beyond it is not
+/// kept, unless nothing waits: the render never waits for the disk, memory stays bounded,
+/// and small images, whose iterations come faster than their files are synced, keep
+/// every iteration.
+const WAITING_PIXELS: usize = 4 << 20;
 
 impl Keeper {
     /// Starts the writer for the job whose folder is `job_dir`, first removing what an
     /// earlier run of the same job kept (a job run again after a restart starts afresh).
     #[must_use]
     pub fn start(job_dir: PathBuf) -> Self {
-        let (tx, rx) = sync_channel::<Arc<LiveFrame>>(QUEUED);
+        let (tx, rx) = channel::<Arc<LiveFrame>>();
+        let waiting = Arc::new(AtomicUsize::new(0));
+        let done = Arc::clone(&waiting);
         let thread = std::thread::Builder::new()
             .name("keep-iterations".into())
             .spawn(move || {
@@ -93,17 +98,20 @@ impl Keeper {
                     if let Err(e) = keep(&job_dir, &lf, &mut kept) {
                         tracing::warn!(iteration = lf.frame.iteration, "not kept: {e}");
                     }
+                    done.fetch_sub(pixels(&lf), Ordering::SeqCst);
                 }
             });
         match thread {
             Ok(t) => Self {
                 tx: Some(tx),
+                waiting,
                 thread: Some(t),
             },
             Err(e) => {
                 tracing::warn!("earlier iterations will not be kept: {e}");
                 Self {
                     tx: None,
+                    waiting,
                     thread: None,
                 }
             }
@@ -111,15 +119,23 @@ impl Keeper {
     }
 
     /// Hands a frame to the writer, unless it is the final one (stored as the job's own
-    /// files) or the writer is [`QUEUED`] frames behind.
+    /// files) or the frames waiting already hold [`WAITING_PIXELS`].
     pub fn offer(&self, lf: &Arc<LiveFrame>) {
+        let Some(tx) = &self.tx else { return };
         if lf.frame.last {
             return;
         }
-        if let Some(tx) = &self.tx {
-            if let Err(TrySendError::Full(lf)) = tx.try_send(Arc::clone(lf)) {
-                tracing::debug!(iteration = lf.frame.iteration, "writer behind: not kept");
-            }
+        let px = pixels(lf);
+        let admitted = self
+            .waiting
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |w| {
+                (w == 0 || w + px <= WAITING_PIXELS).then_some(w + px)
+            })
+            .is_ok();
+        if !admitted {
+            tracing::debug!(iteration = lf.frame.iteration, "writer behind: not kept");
+        } else if tx.send(Arc::clone(lf)).is_err() {
+            self.waiting.fetch_sub(px, Ordering::SeqCst);
         }
     }
 }
@@ -131,6 +147,10 @@ impl Drop for Keeper {
             let _ = t.join();
         }
     }
+}
+
+fn pixels(lf: &LiveFrame) -> usize {
+    lf.frame.image.width() as usize * lf.frame.image.height() as usize
 }
 
 /// Writes one frame's kept layers, then removes what the bounds no longer allow.
