@@ -114,6 +114,16 @@ fn bench_writes_report_results_and_plot_for_every_method() {
     assert!(report.contains("### tiny") && report.contains("| target | met | measured |"));
     // The report opens with the summary against issue 13's targets, and links the sheets.
     assert!(report.contains("## Summary against issue 13's targets"));
+    // First a sentence in plain words, then the words the tables use; the exact judge last.
+    assert!(
+        report.contains("In short: on ")
+            && report.contains("bundled scene and viewing-distance pairs")
+    );
+    let words = report.find("Words used below").expect("the words");
+    let judge = report
+        .find("## How it is judged, exactly")
+        .expect("the judge");
+    assert!(words < report.find("### tiny").unwrap() && judge > report.find("### tiny").unwrap());
     assert!(report.contains("bundled scenes at 60 ppd: Q ≤ 1 at ≤ 0.5× time"));
     assert!(report.contains("(sheets/tiny-60ppd.png)"));
     assert!(report.contains("| ppd | Q (FLIP vs truth"));
@@ -240,6 +250,10 @@ fn bench_judges_a_generated_corpus_against_a_cached_truth() {
     assert!(report.contains("`glimpse bench --quick --corpus 2 --seed 11 --corpus-only`"));
     assert!(report.contains("## Corpus (2 generated scenes"));
     assert!(report.contains("median corpus time (declared ppd)"));
+    assert!(
+        report.contains("In short: on ")
+            && report.contains("generated scenes (at their own viewing distance)")
+    );
 
     // A second run reads both truths from the cache: no file is written again.
     bench();

@@ -28,6 +28,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("DELETE", "/v1/jobs/{id}"),
     ("POST", "/v1/jobs/{id}/cancel"),
     ("GET", "/v1/jobs/{id}/frame"),
+    ("GET", "/v1/jobs/{id}/iterations"),
     ("GET", "/v1/jobs/{id}/scene"),
     ("GET", "/v1/jobs/{id}/stream"),
     ("GET", "/v1/examples"),
@@ -608,7 +609,15 @@ async fn every_documented_operation_answers_and_matches_its_schema() {
             }
             ("POST", "/v1/jobs/{id}/cancel") => assert_eq!(status, 409, "cancel of a finished job"),
             ("DELETE", _) => assert_eq!(status, 204),
-            ("GET", "/healthz" | "/metrics" | "/v1/examples" | "/v1/jobs" | "/v1/jobs/{id}") => {
+            (
+                "GET",
+                "/healthz"
+                | "/metrics"
+                | "/v1/examples"
+                | "/v1/jobs"
+                | "/v1/jobs/{id}"
+                | "/v1/jobs/{id}/iterations",
+            ) => {
                 assert_eq!(status, 200)
             }
             _ => {}

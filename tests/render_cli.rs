@@ -68,6 +68,15 @@ fn every_mode_writes_png_exr_stats_and_layers() {
         let exr = image::open(d.path.join("o.exr")).unwrap();
         assert_eq!(exr.width(), 40);
         assert!(d.path.join("layers/samples.png").exists());
+        // Each iteration before the last keeps its layers (the last is the folder's own).
+        let iterations = s["iterations"].as_u64().unwrap();
+        let first = d.path.join("layers/iterations/0000-image.png");
+        assert_eq!(
+            first.exists(),
+            iterations > 1,
+            "{mode}: {iterations} iterations"
+        );
+        let _ = std::fs::remove_dir_all(d.path.join("layers"));
     }
 }
 

@@ -185,3 +185,129 @@ async fn retention_forgets_the_oldest_finished_jobs_and_their_files() {
         .join("image.png")
         .exists());
 }
+
+/// The distinct colours of a PNG.
+fn colours(png: &[u8]) -> std::collections::BTreeSet<[u32; 3]> {
+    let img = glimpse::raster::decode_image(png).expect("a PNG");
+    img.pixels()
+        .iter()
+        .map(|p| [p.x, p.y, p.z].map(f32::to_bits))
+        .collect()
+}
+
+#[tokio::test]
+async fn earlier_iterations_are_kept_with_layers_that_still_show_the_method() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    let scene: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string("scenes/cornell-box.json").unwrap()).unwrap();
+    let id = common::submit(&c, &base, &scene).await;
+    common::wait_state(&c, &base, &id, "succeeded", Duration::from_secs(120)).await;
+    let last = common::job(&c, &base, &id).await["progress"]["iteration"]
+        .as_u64()
+        .unwrap();
+    assert!(last >= 2, "too few iterations to test: {last}");
+    // The worker writes the last kept iterations just after `done`: wait for them.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let listed = loop {
+        let l = common::get_json(&c, &format!("{base}/v1/jobs/{id}/iterations")).await;
+        let its = l["iterations"].as_array().unwrap().clone();
+        if its.len() as u64 == last + 1 || std::time::Instant::now() > deadline {
+            break its;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    let numbers: Vec<u64> = listed
+        .iter()
+        .map(|i| i["iteration"].as_u64().unwrap())
+        .collect();
+    // A frame is skipped only if the frames waiting for the writer already hold 4 Mpixels
+    // (never at 256²); the first and the final are there in any case.
+    assert!(numbers.len() >= 3, "{listed:?}");
+    assert_eq!((numbers[0], *numbers.last().unwrap()), (0, last));
+    let frame = |n: u64, layer: &str| {
+        let url = format!("{base}/v1/jobs/{id}/frame?iteration={n}&layer={layer}");
+        let c = c.clone();
+        async move { c.get(url).send().await.unwrap() }
+    };
+    for it in &listed {
+        let n = it["iteration"].as_u64().unwrap();
+        for layer in it["layers"].as_array().unwrap() {
+            let r = frame(n, layer.as_str().unwrap()).await;
+            assert_eq!(r.status(), 200, "iteration {n} {layer}");
+            assert!(r.bytes().await.unwrap().starts_with(b"\x89PNG"));
+        }
+    }
+    // At the end every triangle is final: one colour. An earlier iteration still shows
+    // where refinement went.
+    let final_classes = frame(last, "classes").await.bytes().await.unwrap();
+    let n1 = numbers[1];
+    let early_classes = frame(n1, "classes").await.bytes().await.unwrap();
+    assert!(colours(&final_classes).len() <= 2, "final classes");
+    assert!(
+        colours(&early_classes).len() >= 3,
+        "iteration {n1}'s classes"
+    );
+    let early_distance = frame(n1, "distance").await.bytes().await.unwrap();
+    assert!(
+        colours(&early_distance).len() > 3,
+        "iteration {n1}'s distance"
+    );
+    // The final iteration's image is the latest frame's.
+    assert_eq!(
+        frame(last, "image").await.bytes().await.unwrap(),
+        c.get(format!("{base}/v1/jobs/{id}/frame"))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap()
+    );
+
+    // Mistakes answer with what was wrong and where.
+    let r = frame(last + 100, "image").await;
+    assert_eq!(r.status(), 404);
+    let e: serde_json::Value = r.json().await.unwrap();
+    let msg = e["error"]["message"].as_str().unwrap();
+    assert!(
+        msg.contains("not kept") && msg.contains("from 0 to"),
+        "{msg}"
+    );
+    assert_eq!(e["error"]["path"], "iteration");
+    let r = c
+        .get(format!("{base}/v1/jobs/{id}/frame?iteration=-1"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 400);
+    let e: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(e["error"]["path"], "iteration");
+    let r = c
+        .get(format!("{base}/v1/jobs/{id}/frame?iteration=0&format=exr"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 400);
+    assert_eq!(frame(0, "objects").await.status(), 404);
+
+    // They are the job's files: deleting the job removes them.
+    let folder = dir.path().join("jobs").join(&id).join("iterations");
+    assert!(folder.is_dir());
+    let r = c
+        .delete(format!("{base}/v1/jobs/{id}"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 204);
+    assert!(!folder.exists());
+    let r = c
+        .get(format!("{base}/v1/jobs/{id}/iterations"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 404);
+}

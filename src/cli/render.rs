@@ -5,6 +5,8 @@ use crate::progressive::eta::{self, Eta, EtaTracker};
 use crate::progressive::{self, RenderOptions};
 use crate::raster::{self, LinearImage};
 use crate::scene::{Limits, RenderMode};
+use crate::service::iterations::{to_forget, Kept, KEPT_LAYERS, MAX_KEPT, MAX_KEPT_BYTES};
+use crate::service::store::ITERATIONS_DIR;
 use crate::tracer::PathTracer;
 use anyhow::Context;
 use std::path::{Path, PathBuf};
@@ -31,8 +33,12 @@ pub struct RenderArgs {
     /// Also write the linear HDR image as OpenEXR.
     #[arg(long)]
     pub exr: Option<PathBuf>,
-    /// Write the samples, distance, classes and objects layers of the last frame into this folder.
-    #[arg(long)]
+    /// Write every layer of the last frame (image, samples, distance, classes, objects)
+    /// into this folder, and each earlier iteration's image, samples, distance and classes
+    /// into its `iterations/` (`0003-distance.png`; the last 64 within 128 MiB, thinned
+    /// evenly on longer runs): at the end every triangle is final, so the last frame's
+    /// distance and classes are one flat colour and the earlier ones show the method.
+    #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
     /// Override `render.samples_per_pixel`.
     #[arg(long)]
@@ -216,7 +222,14 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         f64::from(scene.progressive.t0),
         scene.progressive.max_iterations,
     );
+    let mut iterations = a
+        .layers
+        .as_ref()
+        .map(|dir| IterationFiles::new(dir, scene.display.exposure));
     let mut on_frame = |f: &progressive::Frame| {
+        if let Some(files) = &mut iterations {
+            files.keep(f);
+        }
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
         let eta = tracker.update(f, elapsed);
         let done = done_share(elapsed, &eta);
@@ -251,7 +264,10 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(dir) = &a.layers {
-        write_layers(dir, &frame)?;
+        write_layers(dir, &frame, scene.display.exposure)?;
+    }
+    if let Some(e) = iterations.and_then(|f| f.error) {
+        return Err(e);
     }
     eprintln!(
         "{}: {}x{} {} in {}, {:.1} % of pixels traced",
@@ -325,9 +341,79 @@ fn pass_line(done: usize, total: usize, elapsed_ms: f64) -> (String, u64) {
     (line, (share * BAR_STEPS as f64).round() as u64)
 }
 
-fn write_layers(dir: &std::path::Path, frame: &progressive::Frame) -> anyhow::Result<()> {
+/// `--layers DIR`: each earlier iteration's layers in `DIR/iterations/`, bounded and
+/// named as the service keeps them (`service::iterations`). Written as the frames come
+/// (a frame is not kept in memory); the first error is reported after the render.
+struct IterationFiles {
+    dir: PathBuf,
+    exposure: f32,
+    kept: Vec<Kept>,
+    error: Option<anyhow::Error>,
+}
+
+impl IterationFiles {
+    fn new(dir: &Path, exposure: f32) -> Self {
+        Self {
+            dir: dir.join(ITERATIONS_DIR),
+            exposure,
+            kept: Vec::new(),
+            error: None,
+        }
+    }
+
+    fn keep(&mut self, f: &progressive::Frame) {
+        // The last frame is written whole beside `iterations/` (`write_layers`); a
+        // preview is no iteration.
+        if f.last || f.preview || self.error.is_some() {
+            return;
+        }
+        if let Err(e) = self.write(f) {
+            self.error = Some(e);
+        }
+    }
+
+    fn write(&mut self, f: &progressive::Frame) -> anyhow::Result<()> {
+        std::fs::create_dir_all(&self.dir)
+            .with_context(|| format!("cannot create {}", self.dir.display()))?;
+        let mut bytes = 0u64;
+        for layer in KEPT_LAYERS {
+            let Some(png) = progressive::layers::encode_layer(f, layer.as_str(), self.exposure)?
+            else {
+                continue;
+            };
+            let p = self.file(f.iteration, layer.as_str());
+            std::fs::write(&p, &png).with_context(|| format!("cannot write {}", p.display()))?;
+            bytes += png.len() as u64;
+        }
+        self.kept.push(Kept {
+            iteration: f.iteration,
+            bytes,
+        });
+        for n in to_forget(&self.kept, MAX_KEPT, MAX_KEPT_BYTES) {
+            for layer in KEPT_LAYERS {
+                let _ = std::fs::remove_file(self.file(n, layer.as_str()));
+            }
+            self.kept.retain(|k| k.iteration != n);
+        }
+        Ok(())
+    }
+
+    fn file(&self, iteration: u32, layer: &str) -> PathBuf {
+        self.dir.join(format!("{iteration:04}-{layer}.png"))
+    }
+}
+
+/// The last frame's layers; the image as on the scene's display, like `--output`'s PNG.
+fn write_layers(
+    dir: &std::path::Path,
+    frame: &progressive::Frame,
+    exposure: f32,
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    for (name, png) in progressive::layers::encode_all(frame)? {
+    for name in progressive::layers::LAYERS {
+        let Some(png) = progressive::layers::encode_layer(frame, name, exposure)? else {
+            continue;
+        };
         let p = dir.join(format!("{name}.png"));
         std::fs::write(&p, png).with_context(|| format!("cannot write {}", p.display()))?;
     }

@@ -3,26 +3,51 @@
 //!
 //! Method: the mean perceptual distance between successive frames (`mean_distance` of
 //! each iteration, F&P04 §4.2) shrinks roughly geometrically as the mesh refines, and the
-//! render is done when it falls below `t0`. We fit `ln d_k = a + b·k` by least squares over
-//! the last [`EtaTracker::WINDOW`] iterations with `d_k > 0`; if `b < 0` the iterations
-//! still needed are `n = k* − k` with `k* = (ln t0 − a) / b` (capped at `max_iterations`).
-//! Later iterations are shorter (fewer triangles are left to refine), so the time left is
-//! not `n` times an iteration so far but a shrinking series: the mean of the last two
-//! iterations' times `τ` times `r + r² + … + rⁿ` with `r` = [`TAIL_RATIO`]. With `t0 = 0`
-//! ("every pixel ends up traced") the traced-pixel fraction is extrapolated linearly
-//! instead.
+//! render is done when every triangle is final, about [`TAIL_ITERATIONS`] after the mean
+//! falls below `t0` (the loop stops on each triangle's distance, not on the mean). With two
+//! or more distances we fit `ln d_k = a + b·k` by least squares over the last
+//! [`EtaTracker::WINDOW`] iterations with `d_k > 0`; if `b < 0` the iterations still needed
+//! are `n = max(k* − k, 0) + TAIL_ITERATIONS` with `k* = (ln t0 − a) / b` (capped at
+//! `max_iterations`). Later iterations are shorter (fewer triangles are left to refine), so
+//! the time left is not `n` times an iteration so far but a shrinking series: the mean of
+//! the last two iterations' times `τ` times `r + r² + … + rⁿ` with `r` = [`TAIL_RATIO`].
+//!
+//! Before two distances exist there is no decay to fit, yet on short runs that is a
+//! quarter to a half of the run, so the first two frames get an estimate from the time so
+//! far, honestly wide: after the first frame (no distance yet) [`FIRST_FRAME_FACTOR`] times
+//! the time so far, within ÷2 and ×4; after the second (one distance `d`)
+//! [`ONE_DISTANCE_FACTOR`] · elapsed · ln(d / t0)², within ×0.6 and ×1.7: the iterations
+//! still needed grow as ln(d / t0) (a geometric decay) and so does the share of pixels
+//! each one refines. These constants and ranges are calibrated on the bundled scenes
+//! (`ETA_TRACE=1 cargo bench --bench eta` prints every frame), where the time left after
+//! the first frame was 6–26 times the time so far and after the second 0.8–1.65 times the
+//! estimate. With `t0 = 0` ("every pixel ends up traced") the traced-pixel fraction is
+//! extrapolated linearly instead.
 //!
 //! The answer is a range, never a bare number: the fit's confidence (R² shrunk by the
 //! number of points, `R² · n / (n + 2)`, so two points never claim certainty) widens it.
-//! When at most one iteration is predicted to remain the answer is [`Eta::Finishing`], so
-//! a running render never reads "0 ms left".
+//! When the mean distance is predicted below `t0` already (one iteration left) the answer is
+//! [`Eta::Finishing`], so a running render never reads "0 ms left".
 
 use super::Frame;
 
 /// How much shorter each iteration is than the one before, once the loop refines: on the
-/// bundled scenes the iterations after the longest take 0.6–0.8 of their predecessor's
-/// time (`ETA_TRACE=1 cargo bench --bench eta` prints every frame).
-pub const TAIL_RATIO: f64 = 0.75;
+/// bundled scenes the iterations after the longest take 0.4–0.9 of their predecessor's
+/// time (`ETA_TRACE=1 cargo bench --bench eta` prints every frame); 0.8 gave the smallest
+/// errors there of 0.5–0.8.
+pub const TAIL_RATIO: f64 = 0.8;
+
+/// Iterations after the mean distance falls below t0 (the loop stops when every triangle
+/// is final; on the bundled scenes the mean falls from about t0 to near 0 in one more).
+pub const TAIL_ITERATIONS: f64 = 1.0;
+
+/// After the first frame (no distance yet), the time left is about this many times the
+/// time so far (bundled scenes: 6–26).
+pub const FIRST_FRAME_FACTOR: f64 = 7.0;
+
+/// After the second frame (one distance `d`), the time left is about this times the time
+/// so far times ln(d / t0)² (bundled scenes: ln(d / t0) of 1.5 to 2.3).
+pub const ONE_DISTANCE_FACTOR: f64 = 1.8;
 
 /// What is known of the time left.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,6 +79,18 @@ impl Eta {
             low_ms: ms * (1.0 - spread).max(0.0),
             high_ms: ms * (1.0 + spread),
             confidence: c,
+        }
+    }
+
+    /// Between `low_ms` and `high_ms`, centred on `ms`, for estimates that come from a
+    /// calibration rather than a fit (the range is what the calibration saw).
+    #[must_use]
+    pub fn between(ms: f64, low_ms: f64, high_ms: f64, confidence: f64) -> Self {
+        Self::Left {
+            ms,
+            low_ms: low_ms.min(ms),
+            high_ms: high_ms.max(ms),
+            confidence: confidence.clamp(0.0, 1.0),
         }
     }
 
@@ -146,6 +183,11 @@ impl EtaTracker {
             }
             return Eta::Unknown;
         }
+        match self.points.len() {
+            0 => return before_any_distance(elapsed_ms),
+            1 => return after_one_distance(elapsed_ms, self.points[0].1.exp(), self.t0),
+            _ => {}
+        }
         let Some(fit) = fit_line(&self.points) else {
             return Eta::Unknown;
         };
@@ -156,7 +198,7 @@ impl EtaTracker {
         // Iterations are numbered from 0, so the last possible one is max_iterations − 1.
         let k_last = f64::from(self.max_iterations.saturating_sub(1));
         let k_star = ((self.t0.ln() - fit.intercept) / fit.slope).min(k_last);
-        let remaining = k_star - k_now;
+        let remaining = (k_star - k_now).max(0.0) + TAIL_ITERATIONS;
         if remaining <= 1.0 {
             return Eta::Finishing;
         }
@@ -176,6 +218,23 @@ impl EtaTracker {
         let last = &durations[durations.len().saturating_sub(2)..];
         last.iter().sum::<f64>() / last.len().max(1) as f64
     }
+}
+
+/// The first frame: no distance yet, so a calibrated multiple of the time so far.
+fn before_any_distance(elapsed_ms: f64) -> Eta {
+    let ms = FIRST_FRAME_FACTOR * elapsed_ms;
+    Eta::between(ms, ms / 2.0, ms * 4.0, 0.1)
+}
+
+/// The second frame: one distance `d`, no decay yet; a calibrated multiple of the time so
+/// far, growing with how far `d` is above t0. "Finishing" once `d` is already below it.
+fn after_one_distance(elapsed_ms: f64, d: f64, t0: f64) -> Eta {
+    let x = (d / t0).ln();
+    if !x.is_finite() || x <= 0.0 {
+        return Eta::Finishing;
+    }
+    let ms = ONE_DISTANCE_FACTOR * elapsed_ms * x * x;
+    Eta::between(ms, ms * 0.6, ms * 1.7, 0.3)
 }
 
 struct Line {
@@ -226,11 +285,11 @@ mod tests {
 
     #[test]
     fn follows_a_geometric_decay_as_a_range() {
-        // d_k = 16 / 2^k reaches t0 = 1 at k = 4; after iteration 1 (2 iterations of
-        // 100 ms) three remain, each 3/4 of the one before: 100·(0.75 + 0.75² + 0.75³)
-        // = 173.4375 ms; perfect fit, confidence 2/4.
+        // d_k = 16 / 2^k reaches t0 = 1 at k = 4, and the loop ends one iteration later;
+        // after iteration 1 (2 iterations of 100 ms) 3 + 1 remain, each 0.8 of the one
+        // before: 100·(0.8 + 0.8² + 0.8³ + 0.8⁴) = 236.16 ms; perfect fit, confidence 2/4.
         let mut t = EtaTracker::new(1.0, 64);
-        assert_eq!(t.update(&frame(0, 16.0, false), 100.0), Eta::Unknown);
+        t.update(&frame(0, 16.0, false), 100.0);
         let eta = t.update(&frame(1, 8.0, false), 200.0);
         let Eta::Left {
             ms,
@@ -241,21 +300,50 @@ mod tests {
         else {
             panic!("{eta:?}")
         };
-        assert!((ms - 173.4375).abs() < 1e-6, "{eta:?}");
+        assert!((ms - 236.16).abs() < 1e-6, "{eta:?}");
         assert!((confidence - 0.5).abs() < 1e-9, "{eta:?}");
         // ±(0.25 + 0.75·0.5) = ±62.5 %.
-        assert!((low_ms - 65.039_062_5).abs() < 1e-6 && (high_ms - 281.835_937_5).abs() < 1e-6);
-        assert_eq!(eta.describe(), "65 ms–282 ms left");
+        assert!((low_ms - 88.56).abs() < 1e-6 && (high_ms - 383.76).abs() < 1e-6);
+        assert_eq!(eta.describe(), "89 ms–384 ms left");
+    }
+
+    #[test]
+    fn the_first_two_frames_get_a_wide_calibrated_range() {
+        // No distance yet: 7 times the time so far, within ÷2 and ×4.
+        let mut t = EtaTracker::new(1.0, 64);
+        assert_eq!(
+            t.update(&frame(0, 0.0, false), 100.0),
+            Eta::between(700.0, 350.0, 2800.0, 0.1)
+        );
+        // One distance of e² JND against t0 = 1: 1.8 · 200 ms · 2² = 1440 ms, ×0.6 to ×1.7.
+        let eta = t.update(&frame(1, std::f64::consts::E.powi(2), false), 200.0);
+        let Eta::Left {
+            ms,
+            low_ms,
+            high_ms,
+            ..
+        } = eta
+        else {
+            panic!("{eta:?}")
+        };
+        assert!((ms - 1440.0).abs() < 1e-6 && (low_ms - 864.0).abs() < 1e-6);
+        assert!((high_ms - 2448.0).abs() < 1e-6, "{eta:?}");
+        // A first distance already below t0: the end is near.
+        let mut t = EtaTracker::new(1.0, 64);
+        t.update(&frame(0, 0.0, false), 100.0);
+        assert_eq!(t.update(&frame(1, 0.5, false), 150.0), Eta::Finishing);
     }
 
     #[test]
     fn says_finishing_instead_of_zero_while_running() {
-        // After iteration 3 of the same decay one iteration (k = 4) is left.
+        // The same decay: after iteration 3 (d = 2) two are left; after iteration 4 the
+        // mean is at t0 and one is left.
         let mut t = EtaTracker::new(1.0, 64);
         for k in 0..3 {
             t.update(&frame(k, 16.0 / f64::from(1 << k), false), 100.0);
         }
-        assert_eq!(t.update(&frame(3, 2.0, false), 400.0), Eta::Finishing);
+        assert!(t.update(&frame(3, 2.0, false), 400.0).ms().is_some());
+        assert_eq!(t.update(&frame(4, 1.0, false), 500.0), Eta::Finishing);
         assert_eq!(Eta::Finishing.describe(), "finishing");
     }
 
@@ -270,11 +358,11 @@ mod tests {
     #[test]
     fn is_capped_by_max_iterations() {
         // Very slow decay: k* would be huge; capped at 10 iterations in all (k = 9), so
-        // 8 remain after k = 1, the first 3/4 of 10 ms: 10·3·(1 − 0.75⁸).
+        // 8 + 1 remain after k = 1, the first 0.8 of 10 ms: 10·4·(1 − 0.8⁹).
         let mut t = EtaTracker::new(1.0, 10);
         t.update(&frame(0, 100.0, false), 10.0);
         let eta = t.update(&frame(1, 99.0, false), 20.0);
-        let want = 30.0 * (1.0 - 0.75f64.powi(8));
+        let want = 40.0 * (1.0 - 0.8f64.powi(9));
         assert!((eta.ms().unwrap() - want).abs() < 1e-6, "{eta:?}");
     }
 

@@ -427,6 +427,7 @@ pub fn router(state: AppState) -> Router {
         .route("/jobs/{id}/scene", get(get_scene))
         .route("/jobs/{id}/cancel", post(cancel_job))
         .route("/jobs/{id}/frame", get(get_frame))
+        .route("/jobs/{id}/iterations", get(get_iterations))
         .route("/jobs/{id}/stream", get(ws::stream))
         .route("/examples", get(examples::list))
         // Unknown `/v1` routes too are behind the token (401, not 404: no route map for
@@ -849,12 +850,17 @@ async fn get_frame(
         )
         .at("format"));
     }
+    let iteration = iteration_param(&q, exr)?;
     let ctype = if exr { "image/x-exr" } else { "image/png" };
     let headers = [
         (header::CONTENT_TYPE, ctype),
         (header::CACHE_CONTROL, "no-store"),
     ];
-    let path = match st.jobs.frame(id, layer, exr).await? {
+    let found = match iteration {
+        Some(n) => st.jobs.iteration_frame(id, n, layer).await?,
+        None => st.jobs.frame(id, layer, exr).await?,
+    };
+    let path = match found {
         FrameLookup::Found(FrameBytes::Memory(bytes)) => {
             return Ok((headers, bytes).into_response())
         }
@@ -867,6 +873,7 @@ async fn get_frame(
             ))
         }
         FrameLookup::NoLayer => return Err(missing_layer(layer)),
+        FrameLookup::NoIteration(kept) => return Err(missing_iteration(iteration, &kept)),
         FrameLookup::EncodingFailed(e) => return Err(ApiError::internal("encoding a frame", &e)),
     };
     // Streamed from the file: a request holds a file handle and a small buffer, never the
@@ -889,6 +896,65 @@ async fn get_frame(
     res.headers_mut()
         .insert(header::CONTENT_LENGTH, HeaderValue::from(len));
     Ok(res)
+}
+
+/// The `iteration` query parameter of `GET .../frame`: absent (the latest frame) or an
+/// iteration number as the job's progress counts them (PNG layers only).
+fn iteration_param(q: &HashMap<String, String>, exr: bool) -> Result<Option<u32>, ApiError> {
+    let Some(text) = q.get("iteration") else {
+        return Ok(None);
+    };
+    let n = text.parse::<u32>().map_err(|_| {
+        ApiError::new(
+            ErrorCode::InvalidParameter,
+            format!(
+                "iteration must be a whole number from 0 (as the job's progress counts them), not {:?}",
+                clip(text)
+            ),
+        )
+        .at("iteration")
+    })?;
+    if exr {
+        return Err(ApiError::new(
+            ErrorCode::InvalidParameter,
+            "format=exr is only available for the latest frame; earlier iterations are kept as PNG",
+        )
+        .at("format"));
+    }
+    Ok(Some(n))
+}
+
+fn missing_iteration(iteration: Option<u32>, kept: &[u32]) -> ApiError {
+    let n = iteration.map_or_else(String::new, |n| format!(" {n}"));
+    let which = match (kept.first(), kept.last()) {
+        (Some(a), Some(b)) => format!(
+            "{} iterations from {a} to {b} are (GET .../iterations lists them)",
+            kept.len()
+        ),
+        _ => "no iteration is kept yet".to_owned(),
+    };
+    ApiError::new(
+        ErrorCode::NotFound,
+        format!("iteration{n} of this job is not kept; {which}"),
+    )
+    .at("iteration")
+}
+
+/// The iterations of a job whose frames can be had (`GET .../frame?iteration=N`).
+async fn get_iterations(
+    State(st): State<AppState>,
+    JobId(id): JobId,
+) -> Result<Json<IterationList>, ApiError> {
+    st.jobs
+        .iterations(id)
+        .await?
+        .map(|iterations| Json(IterationList { iterations }))
+        .ok_or_else(|| ApiError::not_found_job(&id.to_string()))
+}
+
+#[derive(Serialize)]
+struct IterationList {
+    iterations: Vec<crate::service::jobs::KeptIteration>,
 }
 
 fn missing_layer(layer: Layer) -> ApiError {

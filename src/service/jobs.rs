@@ -352,6 +352,8 @@ pub enum FrameLookup {
     NoFrame,
     /// The frame lacks this layer (`distance` in reference mode, a late file not written).
     NoLayer,
+    /// No frame of this iteration is kept; these are (oldest first).
+    NoIteration(Vec<u32>),
     EncodingFailed(String),
     Found(FrameBytes),
 }
@@ -359,6 +361,13 @@ pub enum FrameLookup {
 /// A finished job's stored final frame: the image file and the layers stored with it.
 pub struct StoredFrame {
     pub image: std::path::PathBuf,
+    pub layers: Vec<Layer>,
+}
+
+/// One iteration of a job whose frame can be had, and its layers.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct KeptIteration {
+    pub iteration: u32,
     pub layers: Vec<Layer>,
 }
 
@@ -614,6 +623,84 @@ impl Jobs {
             Ok(false) => FrameLookup::NoLayer,
             Err(e) => return Err(e.into()),
         })
+    }
+
+    /// One layer of iteration `iteration` of a job: the live frame's if it is that
+    /// iteration, a kept earlier iteration's file ([`super::iterations`]), or the
+    /// finished job's final frame if it is that iteration.
+    pub async fn iteration_frame(
+        &self,
+        id: Uuid,
+        iteration: u32,
+        layer: Layer,
+    ) -> Result<FrameLookup, StoreError> {
+        let live = self.live(id);
+        // The live frame itself (not "the latest" looked up again, which may have moved on).
+        let live_frame = live.as_ref().and_then(|l| l.snapshot().frame.clone());
+        if let Some(lf) = live_frame.filter(|f| f.frame.iteration == iteration) {
+            let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, false))
+                .await
+                .map_err(|e| e.to_string())
+                .and_then(|r| r);
+            return Ok(match encoded {
+                Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
+                Ok(None) => FrameLookup::NoLayer,
+                Err(e) => FrameLookup::EncodingFailed(e),
+            });
+        }
+        let path = store::iteration_path(&self.inner.store.job_dir(id), iteration, layer);
+        if tokio::fs::try_exists(&path).await? {
+            return Ok(FrameLookup::Found(FrameBytes::File(path)));
+        }
+        if live.is_none() {
+            let Some(job) = self.inner.store.get(id).await? else {
+                return Ok(FrameLookup::NotFound);
+            };
+            if job.has_frame && job.progress.as_ref().map(|p| p.iteration) == Some(iteration) {
+                return self.frame(id, layer, false).await;
+            }
+        }
+        let kept = self.iterations(id).await?.unwrap_or_default();
+        Ok(if kept.iter().any(|k| k.iteration == iteration) {
+            FrameLookup::NoLayer
+        } else {
+            FrameLookup::NoIteration(kept.iter().map(|k| k.iteration).collect())
+        })
+    }
+
+    /// The iterations of a job whose frames can be had (`None` if there is no such job):
+    /// the kept earlier ones and the latest (live, or the finished job's final frame),
+    /// oldest first, each with its layers.
+    pub async fn iterations(&self, id: Uuid) -> Result<Option<Vec<KeptIteration>>, StoreError> {
+        let latest = match self.live(id) {
+            Some(live) => live
+                .snapshot()
+                .frame
+                .as_ref()
+                .map(|f| (f.frame.iteration, f.layers.clone())),
+            None => {
+                let Some(job) = self.inner.store.get(id).await? else {
+                    return Ok(None);
+                };
+                match (job.has_frame, job.progress) {
+                    (true, Some(p)) => self.stored_frame(id).await.map(|f| (p.iteration, f.layers)),
+                    _ => None,
+                }
+            }
+        };
+        let dir = self.inner.store.job_dir(id);
+        let mut kept = tokio::task::spawn_blocking(move || store::kept_iterations_blocking(&dir))
+            .await
+            .map_err(|e| std::io::Error::other(e.to_string()))??;
+        if let Some((n, layers)) = latest {
+            kept.retain(|(k, _)| *k != n);
+            kept.push((n, layers));
+        }
+        Ok(Some(
+            kept.into_iter()
+                .map(|(iteration, layers)| KeptIteration { iteration, layers })
+                .collect(),
+        ))
     }
 
     /// What a stream of job `id` follows: the live snapshots while the job is queued or
@@ -968,6 +1055,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             .rt
             .spawn_blocking(move || store::prepare_job_dir_blocking(&dir))
     };
+    let keeper = super::iterations::Keeper::start(job_dir.clone());
     let mut latest: Option<Arc<LiveFrame>> = None;
     let mut exposure = 1.0f32;
     let mut last_pixels = 0u64;
@@ -1022,6 +1110,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
                 progress.clone(),
                 Arc::clone(&inner.metrics),
             ));
+            keeper.offer(&lf);
             latest = Some(Arc::clone(&lf));
             let mut j = job.clone();
             j.progress = Some(progress);
@@ -1303,9 +1392,17 @@ mod tests {
         let id = jobs.submit("quiet", SMALL).await.unwrap().id;
         let j = settled(&jobs, id).await;
         assert_eq!(j.state, JobState::Succeeded);
-        // Five frames, no watcher: only the final one was encoded, for its file.
-        assert_eq!(metrics.frames_encoded.load(Ordering::Relaxed), 1);
+        // Five frames, no watcher: each encoded at most once, for its file: the final
+        // one and those kept as earlier iterations (the keeper skips a frame rather than
+        // make the render wait, so how many it kept depends on timing).
         let store = &jobs.inner.store;
+        let kept = store::kept_iterations_blocking(&store.job_dir(id)).unwrap();
+        assert!(
+            kept.len() <= 4 && kept.iter().all(|(n, _)| *n < 4),
+            "{kept:?}"
+        );
+        let encoded = metrics.frames_encoded.load(Ordering::Relaxed);
+        assert_eq!(encoded, 1 + kept.len() as u64);
         for layer in Layer::ALL {
             let png = std::fs::read(store.layer_path(id, layer, false)).unwrap();
             let img = crate::raster::decode_image(&png).unwrap();
@@ -1316,10 +1413,14 @@ mod tests {
         // The last frame's linear values (k = 4: blue 1.0), not an earlier frame's.
         assert_eq!(img.get(7, 5).z, 1.0);
         assert_eq!(img.get(4, 3).x, 0.5);
-        // Per job, not per frame: a second unwatched job adds one encoding.
+        // A second unwatched job likewise adds one encoding per file.
         let id = jobs.submit("watched", SMALL).await.unwrap().id;
         settled(&jobs, id).await;
-        assert_eq!(metrics.frames_encoded.load(Ordering::Relaxed), 2);
+        let kept2 = store::kept_iterations_blocking(&store.job_dir(id)).unwrap();
+        assert_eq!(
+            metrics.frames_encoded.load(Ordering::Relaxed),
+            encoded + 1 + kept2.len() as u64
+        );
         jobs.shutdown().await;
     }
 

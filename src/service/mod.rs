@@ -9,12 +9,14 @@
 //!   final images beside them; [`error_code`]: the stable error codes;
 //! - [`ws`]: the stream protocol over a `watch` channel per job;
 //! - [`metrics`]: Prometheus text; [`auth`]: the optional bearer token;
+//! - [`iterations`]: the earlier iterations kept per job (slider, `frame?iteration=N`);
 //! - [`examples`]: the bundled scenes; [`viewer`]: the browser page.
 
 pub mod auth;
 pub mod error_code;
 pub mod examples;
 pub mod http;
+pub mod iterations;
 pub mod jobs;
 pub mod metrics;
 pub mod parse_error;

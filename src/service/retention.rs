@@ -64,13 +64,21 @@ pub fn to_forget(newest_first: &[Finished], policy: &Retention, now: OffsetDateT
     })
 }
 
-/// Bytes of the files in a job's folder (0 when it has none).
+/// Bytes of the files in a job's folder and its sub-folders (the kept iterations), 0
+/// when it has none. Symbolic links are not followed.
 fn folder_bytes(dir: &Path) -> u64 {
     std::fs::read_dir(dir).map_or(0, |rd| {
         rd.filter_map(Result::ok)
-            .filter_map(|e| e.metadata().ok())
-            .filter(std::fs::Metadata::is_file)
-            .map(|m| m.len())
+            .filter_map(|e| e.metadata().ok().map(|m| (e.path(), m)))
+            .map(|(path, m)| {
+                if m.is_dir() {
+                    folder_bytes(&path)
+                } else if m.is_file() {
+                    m.len()
+                } else {
+                    0
+                }
+            })
             .sum()
     })
 }
@@ -147,6 +155,16 @@ mod tests {
         max_age: None,
         max_bytes: None,
     };
+
+    #[test]
+    fn a_jobs_bytes_include_its_kept_iterations() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(super::folder_bytes(&dir.path().join("none")), 0);
+        std::fs::write(dir.path().join("image.png"), [0u8; 10]).unwrap();
+        std::fs::create_dir(dir.path().join("iterations")).unwrap();
+        std::fs::write(dir.path().join("iterations/0001-image.png"), [0u8; 7]).unwrap();
+        assert_eq!(super::folder_bytes(dir.path()), 17);
+    }
 
     #[test]
     fn keeps_the_newest_within_each_limit() {

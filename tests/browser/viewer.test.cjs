@@ -24,7 +24,10 @@
 //  - on a narrow screen an open job's picture comes before the editor;
 //  - the time left reads as a range, "finishing" or "estimating", never "0 ms";
 //  - downloads are named after the job;
-//  - the iteration slider shows an earlier iteration's picture and comes back.
+//  - the iteration slider shows an earlier iteration's picture and comes back; after a
+//    reload it spans the iterations the server kept, and an earlier iteration's classes
+//    layer differs from the final (flat) one, with its legend and the slider in view at
+//    1440×900.
 "use strict";
 
 const fs = require("fs");
@@ -285,6 +288,41 @@ async function main() {
       return i.complete && i.naturalWidth > 0;
     });
     check(true, "/?job=ID reopens the finished job with its frame and statistics");
+    // After the reload the slider runs over the iterations the server kept, and an
+    // earlier iteration's distance and classes layers still show where refinement went
+    // (the final frame's are one flat colour: every triangle is final).
+    await page.waitForFunction(() => !document.querySelector("#iteration-slider").disabled);
+    const kept = JSON.parse((await api("GET", "/v1/jobs/" + jobId + "/iterations")).text).iterations;
+    check(kept.length >= 2 && kept[0].iteration === 0
+      && Number(await page.getAttribute("#iteration-slider", "max")) === kept.length - 1,
+      "after a reload the slider spans the " + kept.length + " iterations the server kept");
+    await page.check("#layer-classes");
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.dataset.layer === "classes" && i.complete && i.naturalWidth > 0;
+    });
+    const finalClasses = await page.locator("#frame-img").screenshot();
+    const finalSrc = await page.getAttribute("#frame-img", "src");
+    await page.$eval("#iteration-slider", (sl) => { sl.value = "1"; sl.dispatchEvent(new Event("input")); });
+    await page.waitForFunction(([old, n]) => {
+      const i = document.querySelector("#frame-img");
+      return i.src !== old && i.dataset.layer === "classes" && i.dataset.shown === String(n)
+        && i.complete && i.naturalWidth > 0;
+    }, [finalSrc, kept[1].iteration]);
+    const earlyClasses = await page.locator("#frame-img").screenshot();
+    check(!earlyClasses.equals(finalClasses), "an earlier iteration's classes layer differs from the final one");
+    check(/iteration \d+ of \d+/.test(await page.textContent("#iteration-shown")), "the slider says which iteration is shown");
+    await page.setViewportSize({ width: 1440, height: 900 });
+    await page.evaluate(() => document.querySelector("#frame-img").scrollIntoView({ block: "nearest" }));
+    const inView = await page.evaluate(() => ["#frame-img", "#legend", "#iteration-slider"].every((q) => {
+      const r = document.querySelector(q).getBoundingClientRect();
+      return r.top >= 0 && r.bottom <= window.innerHeight;
+    }));
+    check(inView, "at 1440×900 the earlier iteration, its legend and the slider are in view together");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-iterations.png"), fullPage: false });
+    await page.setViewportSize({ width: 1280, height: 900 });
+    await page.check("#layer-image");
+    await page.$eval("#iteration-slider", (sl) => { sl.value = sl.max; sl.dispatchEvent(new Event("input")); });
     await page.waitForSelector(`#jobs tr[data-job="${jobId}"]`);
     check(true, "the jobs list shows the job");
     await page.click("#refresh-jobs");

@@ -1,10 +1,91 @@
 //! A job's image files beside the database: `<data>/jobs/<id>/{image,samples,distance,
 //! classes,objects}.png` and `image.exr`, the last frame of a finished (or cancelled)
-//! job. File names derive from the job id (a parsed UUID) and [`super::Layer`] only,
-//! never from user input, so no request can choose a path.
+//! job, and in `iterations/` the frames of earlier iterations (`0003-distance.png`: the
+//! iteration the job's progress counts, then the layer). File names derive from the job
+//! id (a parsed UUID), an iteration number and [`super::Layer`] only, never from user
+//! input, so no request can choose a path.
 
 use super::fault::{self, Write};
-use std::path::Path;
+use super::Layer;
+use std::path::{Path, PathBuf};
+
+/// The folder of a job's earlier iterations, inside its own folder (so deleting or
+/// forgetting the job removes them with it).
+pub const ITERATIONS_DIR: &str = "iterations";
+
+/// The file of one layer of one kept iteration.
+#[must_use]
+pub fn iteration_path(job_dir: &Path, iteration: u32, layer: Layer) -> PathBuf {
+    job_dir
+        .join(ITERATIONS_DIR)
+        .join(format!("{iteration:04}-{}", layer.file_name(false)))
+}
+
+/// Writes one iteration's layer PNGs into the job's `iterations/` folder (atomically and
+/// synced, like the final files); returns their bytes.
+pub fn write_iteration_blocking<B: AsRef<[u8]> + Sync>(
+    job_dir: &Path,
+    iteration: u32,
+    layers: &[(Layer, B)],
+) -> std::io::Result<u64> {
+    let files: Vec<(String, &[u8])> = layers
+        .iter()
+        .map(|(l, b)| (format!("{iteration:04}-{}", l.file_name(false)), b.as_ref()))
+        .collect();
+    write_files_blocking(&job_dir.join(ITERATIONS_DIR), &files)?;
+    Ok(files.iter().map(|(_, b)| b.len() as u64).sum())
+}
+
+/// Removes the files of one kept iteration (those already gone are not an error).
+pub fn remove_iteration_blocking(job_dir: &Path, iteration: u32) -> std::io::Result<()> {
+    for layer in Layer::ALL {
+        match std::fs::remove_file(iteration_path(job_dir, iteration, layer)) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// Removes every kept iteration (a job that runs again after a restart starts afresh).
+pub fn clear_iterations_blocking(job_dir: &Path) -> std::io::Result<()> {
+    match std::fs::remove_dir_all(job_dir.join(ITERATIONS_DIR)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    }
+}
+
+/// The kept iterations and the layers stored for each, oldest first (empty when there
+/// are none). Files whose names this module did not make are ignored.
+pub fn kept_iterations_blocking(job_dir: &Path) -> std::io::Result<Vec<(u32, Vec<Layer>)>> {
+    let rd = match std::fs::read_dir(job_dir.join(ITERATIONS_DIR)) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e),
+    };
+    let mut found = std::collections::BTreeMap::<u32, Vec<Layer>>::new();
+    for entry in rd {
+        let name = entry?.file_name();
+        let Some((n, rest)) = name.to_str().and_then(|s| s.split_once('-')) else {
+            continue;
+        };
+        let (Ok(n), Some(layer)) = (
+            n.parse::<u32>(),
+            rest.strip_suffix(".png").and_then(Layer::parse),
+        ) else {
+            continue;
+        };
+        found.entry(n).or_default().push(layer);
+    }
+    Ok(found
+        .into_iter()
+        .map(|(n, mut layers)| {
+            layers.sort_by_key(|l| Layer::ALL.iter().position(|a| a == l));
+            (n, layers)
+        })
+        .collect())
+}
 
 /// The file the final image goes to, created empty while the job renders (see
 /// [`prepare_job_dir_blocking`]).
@@ -88,6 +169,46 @@ pub fn write_files_blocking<B: AsRef<[u8]> + Sync>(
 
 #[cfg(test)]
 mod tests {
+    use super::Layer;
+
+    #[test]
+    fn kept_iterations_are_written_listed_and_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let job = dir.path().join("job");
+        assert!(super::kept_iterations_blocking(&job).unwrap().is_empty());
+        let bytes = super::write_iteration_blocking(
+            &job,
+            12,
+            &[(Layer::Distance, b"dd".as_slice()), (Layer::Image, b"iii")],
+        )
+        .unwrap();
+        assert_eq!(bytes, 5);
+        super::write_iteration_blocking(&job, 3, &[(Layer::Image, b"i")]).unwrap();
+        // Not ours: ignored.
+        std::fs::write(job.join("iterations/notes.txt"), b"x").unwrap();
+        std::fs::write(job.join("iterations/0001-unknown.png"), b"x").unwrap();
+        assert_eq!(
+            super::kept_iterations_blocking(&job).unwrap(),
+            [
+                (3, vec![Layer::Image]),
+                (12, vec![Layer::Image, Layer::Distance])
+            ]
+        );
+        assert_eq!(
+            std::fs::read(super::iteration_path(&job, 12, Layer::Distance)).unwrap(),
+            b"dd"
+        );
+        super::remove_iteration_blocking(&job, 12).unwrap();
+        super::remove_iteration_blocking(&job, 12).unwrap();
+        assert_eq!(
+            super::kept_iterations_blocking(&job).unwrap(),
+            [(3, vec![Layer::Image])]
+        );
+        super::clear_iterations_blocking(&job).unwrap();
+        super::clear_iterations_blocking(&job).unwrap();
+        assert!(super::kept_iterations_blocking(&job).unwrap().is_empty());
+    }
+
     #[test]
     fn the_final_image_overwrites_its_placeholder_or_is_written_without_one() {
         let dir = tempfile::tempdir().unwrap();

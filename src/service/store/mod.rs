@@ -25,7 +25,9 @@ mod record;
 mod sqlite;
 
 pub use files::{
-    prepare_job_dir_blocking, write_files_blocking, write_final_image_blocking, FINAL_IMAGE_FILE,
+    clear_iterations_blocking, iteration_path, kept_iterations_blocking, prepare_job_dir_blocking,
+    remove_iteration_blocking, write_files_blocking, write_final_image_blocking,
+    write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
 };
 pub use record::{JobError, JobRecord, JobState, Layer, Progress};
 
