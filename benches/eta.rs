@@ -1,4 +1,4 @@
-//! How honest the time left is, and how soon the first picture comes (issue 17).
+//! How honest the time left is, and how soon the first picture comes.
 //!
 //! For every bundled example at its own size, a progressive render records after each
 //! frame the estimate of `progressive::eta` and the time elapsed. Once the render has

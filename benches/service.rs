@@ -1,4 +1,4 @@
-//! Service benchmark (issue #5). Not a test: run it in release and read the numbers.
+//! Service benchmark. Not a test: run it in release and read the numbers.
 //!
 //! ```text
 //! cargo bench --bench service            # defaults: 512², 9 runs

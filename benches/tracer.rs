@@ -1,4 +1,4 @@
-//! Path tracer throughput on Bitterli's Cornell box (issue #2).
+//! Path tracer throughput on Bitterli's Cornell box.
 //!
 //! - `primary_rays/512x512`: one camera ray per pixel, closest hit, on one thread:
 //!   primary rays per second per core = 262144 / time. Camera rays of a scene this small

@@ -1,22 +1,22 @@
 //! Full per-pixel vision-model map versus the adaptive block map on one 512×512 pair
-//! (issue #3). `cargo bench --bench vision`. Prints median times, the speed ratio, both mean
+//! `cargo bench --bench vision`. Prints median times, the speed ratio, both mean
 //! distances and their relative difference, pixels evaluated and ContrastStack bytes/pixel,
 //! plus the fastest run of each part and CPU time per run (steadier on a shared machine).
 //! `GLIMPSE_VISION_BENCH_RUNS=31` runs more iterations than the default 11.
 //!
-//! Targets (issue #3): full model < 50 ms, adaptive ≥ 5× faster, means within 10 %,
-//! ≤ 64 B/px/image. Issue #3's work took the 2-core dev box (pair 1, CPU time per run)
+//! Targets: full model < 50 ms, adaptive ≥ 5× faster, means within 10 %,
+//! ≤ 64 B/px/image. The optimisations took the 2-core dev box (pair 1, CPU time per run)
 //! from decompose both ≈ 26 ms / full map ≈ 87 ms to ≈ 9.5 ms / ≈ 61 ms; wall-clock
 //! medians are about half of those on an idle machine.
 //!
-//! Issue #4 adds the block map between successive progressive frames of
+//! Also the block map between successive progressive frames of
 //! scenes/spheres-rough.json (320×240, all traced pixels as seeds), optimised versus the
-//! issue #3 algorithm (`metric::reference`) in the same run, outputs asserted
+//! plain transcription of §3.2 (`metric::reference`) in the same run, outputs asserted
 //! bit-identical. `GLIMPSE_VISION_BENCH_ONLY=progressive` runs only that case;
 //! `GLIMPSE_VISION_BENCH_KERNEL=1` adds a kernel-only diagnostic (scattered, contiguous
 //! and traced pixel sets).
 //!
-//! s10: each 512² pair also times the pre-s10 two-pass decomposition, interleaved, and
+//! Each 512² pair also times the plain two-pass decomposition, interleaved, and
 //! prints the speed ratio both ways. `GLIMPSE_VISION_BENCH_ONLY=decompose` times only the
 //! decomposition of pair 1 on every pyramid path the CPU runs (stacks asserted bitwise
 //! identical); `GLIMPSE_VISION_BENCH_PATH=<substring>` keeps one path (for `perf record`).
@@ -126,7 +126,7 @@ fn main() {
 
 /// Decomposition of the 512² pair alone (`GLIMPSE_VISION_BENCH_ONLY=decompose`, also
 /// for profiling the pyramid): every pyramid path the CPU runs, interleaved run by run,
-/// stacks asserted bitwise identical to the pre-s10 two-pass AVX2 path.
+/// stacks asserted bitwise identical to the plain two-pass AVX2 path.
 fn decompose_paths() {
     use glimpse::vision::{Isa, RowPath};
     let a = textured(512, 512);
@@ -145,7 +145,7 @@ fn decompose_paths() {
         .unwrap_or(11);
     let only = std::env::var("GLIMPSE_VISION_BENCH_PATH").ok();
     let mut paths: Vec<(String, RowPath)> =
-        vec![("two-pass avx2 (pre-s10)".into(), RowPath::two_pass_avx2())];
+        vec![("two-pass avx2 (plain)".into(), RowPath::two_pass_avx2())];
     for isa in Isa::available() {
         paths.push((
             format!("fused {isa:?}"),
@@ -204,9 +204,9 @@ fn rayon_threads() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// Issue #4: `block_map` between two successive progressive frames of
+/// `block_map` between two successive progressive frames of
 /// scenes/spheres-rough.json (320×240), seeded with every traced pixel of the later frame
-/// (what `VisionJudge::distance` passes), optimised versus the issue #3 algorithm kept in
+/// (what `VisionJudge::distance` passes), optimised versus the plain transcription in
 /// `metric::reference`, interleaved in one run, outputs checked bit-identical.
 /// `GLIMPSE_VISION_BENCH_ONLY=progressive` skips the 512² pairs (profiling).
 fn progressive_frames() {
@@ -356,16 +356,16 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
         .unwrap_or(11);
     let (mut t_dec, mut t_full, mut t_adapt) = (Vec::new(), Vec::new(), Vec::new());
     let (mut c_dec, mut c_full, mut c_adapt) = (0.0, 0.0, 0.0);
-    // s10: the pre-s10 two-pass decomposition, interleaved, for the before/after.
+    // The plain two-pass decomposition, interleaved, for the before/after.
     let (mut t_old, mut c_old) = (Vec::new(), 0.0);
     let mut full_mean = 0.0;
     let mut adapt = None;
-    // The pre-s10 path gets its own model, so its own buffer pool: sharing one pool, the
+    // The plain path gets its own model, so its own buffer pool: sharing one pool, the
     // two paths' buffers (25) overflowed it (19 kept) and the old path paid fresh
-    // allocations and page faults it never pays alone (s10 measured a spurious 1.6–2×).
+    // allocations and page faults it never pays alone (measured: a spurious 1.6–2×).
     let old_model = VisionModel::new(display, w, h);
     for i in 0..runs {
-        // The pre-s10 path and the current one alternate which goes first (the second
+        // The plain path and the current one alternate which goes first (the second
         // finds the images in cache), so neither is favoured.
         let mut time_old = || {
             let (t, c) = (Instant::now(), cpu_ms());
@@ -417,7 +417,7 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     println!("== {name}");
     println!("vision bench {w}x{h}, ppd 28, {} bands, {runs} runs (medians), model construction {model_ms:.2} ms", model.bands().len());
     println!(
-        "  decompose both images     {dec:8.2} ms   (pre-s10 two-pass path {dec_old:.2} ms, {:.2}x; CPU {:.1} vs {:.1} ms/run)",
+        "  decompose both images     {dec:8.2} ms   (plain two-pass path {dec_old:.2} ms, {:.2}x; CPU {:.1} vs {:.1} ms/run)",
         dec_old / dec.max(1e-9),
         c_dec / runs as f64,
         c_old / runs as f64
@@ -442,7 +442,7 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     );
     println!("  speed ratio map only      {:8.2}x", full / ad);
     println!(
-        "  speed ratio incl. decomp  {:8.2}x   (with the pre-s10 decomposition {:.2}x)",
+        "  speed ratio incl. decomp  {:8.2}x   (with the plain two-pass decomposition {:.2}x)",
         (dec + full) / (dec + ad),
         (dec_old + full) / (dec_old + ad)
     );

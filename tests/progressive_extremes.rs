@@ -1,4 +1,4 @@
-//! The progressive renderer (issue #4) at its numerical extremes, with analytic pixel
+//! The progressive renderer at its numerical extremes, with analytic pixel
 //! oracles so every test is fast: black and saturated scenes, tiny and 1-D images,
 //! identical samples, T1 ≤ T0, NaN-free layers, T0 = 0 ≡ reference, cancellation, Guo's
 //! pixel budget, and dark scenes costing less.

@@ -1,4 +1,4 @@
-//! The progressive renderer on the real path tracer (issue #4), tiny so it runs in the
+//! The progressive renderer on the real path tracer, tiny so it runs in the
 //! dev profile: dark displays cost less, the result is close to the reference, Guo at the
 //! same pixel budget, and equal-time uniform rendering returns a usable spp.
 

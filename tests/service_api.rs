@@ -1,4 +1,4 @@
-//! The service end to end (issue #5, service-api.md): the real server on a loopback port
+//! The service end to end (service-api.md): the real server on a loopback port
 //! (`glimpse::service::run` in this process), a real HTTP client and a real WebSocket
 //! client. Scenes are tiny so each test takes a second or two in the dev profile.
 

@@ -93,7 +93,7 @@ async fn sigkill_then_restart_loses_no_job() {
     drop(server);
 }
 
-/// Graceful shutdown (issue #6): SIGTERM during a render stops the server promptly and
+/// Graceful shutdown: SIGTERM during a render stops the server promptly and
 /// cleanly; the interrupted job is queued again and completes after a restart.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_during_a_render_requeues_and_the_restart_completes_it() {

@@ -1,4 +1,4 @@
-//! Hardening of the service (issue 14), against the real binary: a cancel that survives
+//! Hardening of the service, against the real binary: a cancel that survives
 //! SIGKILL, poison jobs, the per-job time limit, the million-triangle mesh, cross-site
 //! requests without a token, bounded names, and the smaller points of the issue.
 

@@ -1,4 +1,4 @@
-//! Operations (issue #6): a bounded load test of the real binary on loopback, and the
+//! Operations: a bounded load test of the real binary on loopback, and the
 //! structured logs (`serve --log-format json`, one line per job state transition).
 //!
 //! The load test submits 50 small progressive jobs and opens 200 WebSocket watchers over

@@ -1,4 +1,4 @@
-//! Storage faults (issue 14) on a real full filesystem: the data folder on a small tmpfs
+//! Storage faults on a real full filesystem: the data folder on a small tmpfs
 //! that the test fills. While it is full, submissions get 503 with `Retry-After`, DELETE
 //! still works, `/healthz` reports the fault, and no job is left in a state that lies
 //! (`succeeded` without its image, `running` or `queued` without a worker); once space

@@ -1,4 +1,4 @@
-//! What a person gets back from the service (issue 17): a job's scene exactly as it was
+//! What a person gets back from the service: a job's scene exactly as it was
 //! written, and warnings for scenes that are valid but almost surely wrong, in the 201
 //! answer and on the command line's stderr. The real binary on a loopback port.
 

@@ -1,4 +1,4 @@
-//! Scenes with known answers for the path tracer (issue #2): furnace, mirror, emitter
+//! Scenes with known answers for the path tracer: furnace, mirror, emitter
 //! seen head-on, darkness, a point light's inverse-square law, glass energy balance,
 //! determinism across subsets and thread counts, extremes, and the Cornell box against
 //! Tungsten's reference render.

@@ -1,4 +1,4 @@
-//! What the vision model must show (issue #3; vision-model.md §2.10). Small images, so the
+//! What the vision model must show (vision-model.md §2.10). Small images, so the
 //! whole file runs in a few seconds in the dev profile.
 
 use glimpse::metric::{self, MetricParams};

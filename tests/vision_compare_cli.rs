@@ -1,4 +1,4 @@
-//! `glimpse compare` (issue #3; cli.md): statistics, map, and one-line errors.
+//! `glimpse compare` (cli.md): statistics, map, and one-line errors.
 
 use glimpse::raster::{encode_exr, encode_png_rgb8, Image, Rgb};
 use std::process::Command;

@@ -1,4 +1,4 @@
-//! The adaptive quad-tree block map (issue #3; vision-model.md §3.2).
+//! The adaptive quad-tree block map (vision-model.md §3.2).
 
 use glimpse::metric::{self, samples_for_area, MetricParams};
 use glimpse::raster::{Image, LinearImage, PixelCoord, Rgb};
@@ -274,7 +274,7 @@ fn assert_same(got: &metric::DistanceMap, want: &metric::DistanceMap, what: &str
 
 #[test]
 fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
-    // Issue #4: the optimised quad-tree must give exactly what the issue #3 code (kept as
+    // The optimised quad-tree must give exactly what the plain transcription of §3.2 (kept as
     // `metric::reference`) gives. A noisy progressive-like pair, seeds as the renderer
     // passes them (many, raster order, some duplicated and out of range), several metric
     // seeds and (H, ε) so the tree goes deep, random and dense sampling both occur.

@@ -1,5 +1,5 @@
 //! `glimpse bench --corpus N --seed S`: N varied scene documents, generated from the seed
-//! alone (issue 13: "so nothing is tuned to five scenes"). The documents are written into
+//! alone, so nothing is tuned to five scenes. The documents are written into
 //! the output folder, so a run can be repeated and any scene opened by a person.
 //!
 //! Each scene is a **room** (floor, ceiling, three walls, open towards the camera) or an
@@ -16,11 +16,11 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use serde_json::{json, Value};
 
-/// Declared pixels per degree (issue 13: 20 to 100).
+/// Declared pixels per degree (20 to 100).
 pub const PPD_RANGE: (f32, f32) = (20.0, 100.0);
-/// Long side of the image, pixels (issue 13: 96 to 512), log-uniform.
+/// Long side of the image, pixels (96 to 512), log-uniform.
 pub const LONG_SIDE: (u32, u32) = (96, 512);
-/// Samples per pixel (issue 13: 8 to 128), log-uniform, within [`SAMPLE_BUDGET`].
+/// Samples per pixel (8 to 128), log-uniform, within [`SAMPLE_BUDGET`].
 pub const SPP: (u32, u32) = (8, 128);
 /// Samples of one reference render at most (width × height × spp): 2^21, about 0.5–1 s of
 /// tracing on this 2-core machine, so the truth (16×) stays under ~15 s and a 40-scene

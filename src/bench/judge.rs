@@ -1,4 +1,4 @@
-//! The judge that knows the truth (issue 13): one scene seen at a declared viewing
+//! The judge that knows the truth: one scene seen at a declared viewing
 //! condition (its `display.pixels_per_degree` set to `ppd` for the progressive render and
 //! for FLIP), judged against the converged render ([`super::truth`]).
 //!
@@ -22,7 +22,7 @@ use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
 
-/// Q and time a scene must reach at every condition (issue 13: "Q ≤ 1.0 at no more than
+/// Q and time a scene must reach at every condition ("Q ≤ 1.0 at no more than
 /// 0.5× the reference's time").
 pub const Q_TARGET: f64 = 1.0;
 pub const TIME_TARGET: f64 = 0.5;

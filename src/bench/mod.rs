@@ -1,4 +1,4 @@
-//! `glimpse bench`: the speed-versus-accuracy study (issue #4, brief "measure that trade").
+//! `glimpse bench`: the speed-versus-accuracy study (the brief: "measure that trade").
 //!
 //! For every scene of a folder, in one process and one run, side by side:
 //! * **reference**: every pixel traced at the scene's samples per pixel;
@@ -11,7 +11,7 @@
 //!   wall time (equal time);
 //! * the progressive run's time split ([`TimeSplit`]): its traced pixels traced again
 //!   alone, against the reference, and the rest (the loop's own price);
-//! * the judge that knows the truth ([`judge`], issue 13): every scene at several declared
+//! * the judge that knows the truth ([`judge`]): every scene at several declared
 //!   viewing conditions (pixels per degree), Q = FLIP(progressive, truth) / FLIP(reference,
 //!   truth) against a cached converged render ([`truth`]), the time ratio, whether objects
 //!   keep their colour ([`objects`]) and a contact sheet ([`sheet`]);
@@ -101,13 +101,13 @@ impl BenchConfig {
     }
 }
 
-/// The declared viewing conditions of issue 13, pixels per degree: 28 is a 2004 display
+/// The declared viewing conditions judged by default, pixels per degree: 28 is a 2004 display
 /// seen from 50 cm (the scene format's default); 45, 60 and 90 modern desktop and laptop
 /// displays at their usual distances.
 pub const STANDARD_CONDITIONS: [f32; 4] = [28.0, 45.0, 60.0, 90.0];
 /// `--quick`'s conditions: the old default and a modern display.
 pub const QUICK_CONDITIONS: [f32; 2] = [28.0, 60.0];
-/// The t0 sweep runs at these conditions (issue 13), or at the first of
+/// The t0 sweep runs at these conditions, or at the first of
 /// [`QUICK_CONDITIONS`] in quick mode.
 pub const SWEEP_CONDITIONS: [f32; 2] = [28.0, 60.0];
 

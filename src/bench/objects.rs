@@ -1,4 +1,4 @@
-//! "Objects keep their colour" (issue 13): over the pixels of each object the object-id
+//! "Objects keep their colour": over the pixels of each object the object-id
 //! map gives, the progressive image's mean linear radiance must be within the larger of
 //! 6 % and 3 × the reference's own error of the converged render's (the truth's).
 //!
@@ -12,11 +12,11 @@ use crate::raster::{Image, LinearImage};
 use crate::scene::{ObjectId, BACKGROUND_ID};
 use serde::Serialize;
 
-/// Objects covering less of the image than this are not judged (issue 13: 0.5 %).
+/// Objects covering less of the image than this are not judged (0.5 %).
 pub const MIN_COVERAGE: f64 = 0.005;
-/// The smallest allowed error (issue 13: 6 %).
+/// The smallest allowed error (6 %).
 pub const MIN_TOLERANCE: f64 = 0.06;
-/// The allowed error grows to this many times the reference's own error (issue 13: 3×).
+/// The allowed error grows to this many times the reference's own error (3×).
 pub const REFERENCE_FACTOR: f64 = 3.0;
 /// Rec.709 luminance weights (linear RGB).
 const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];

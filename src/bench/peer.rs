@@ -3,7 +3,7 @@
 //! progressive render took, and is judged by FLIP against Mitsuba's own converged render,
 //! beside Glimpse judged against Glimpse's own converged render. Renderers differ in pixel
 //! filters and edge conventions, so a shared reference would judge conventions, not
-//! convergence (issue #4).
+//! convergence.
 
 use super::flip::{flip, FlipScore};
 use super::BenchConfig;

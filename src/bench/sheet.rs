@@ -1,4 +1,4 @@
-//! The contact sheet a person looks at (issue 13): reference | progressive | truth | FLIP
+//! The contact sheet a person looks at: reference | progressive | truth | FLIP
 //! map of the progressive image against the truth, side by side in one PNG, each panel as
 //! the display shows it (exposure, clamp, sRGB), small images enlarged by whole pixels so
 //! blotches and grain are visible.

@@ -1,5 +1,5 @@
 //! The truth the study judges against: the same scene traced with [`TRUTH_SPP_FACTOR`] ×
-//! its samples per pixel and another seed (issue 13), cached on disk as a float EXR so a
+//! its samples per pixel and another seed, cached on disk as a float EXR so a
 //! second run does not trace it again.
 //!
 //! The cache key is a hash of everything the render depends on: the scene document as

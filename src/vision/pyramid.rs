@@ -10,13 +10,12 @@
 //! tap order of the plain per-sample loop, so the levels are bitwise those of that loop
 //! (tested against it below).
 //!
-//! s10 (issues #3/#4, the decomposition had become most of the adaptive metric's cost):
-//! the default path ([`RowPath::best`]) fuses the two passes per band of output rows (the
+//! The decomposition was most of the adaptive metric's cost, hence more: the default path ([`RowPath::best`]) fuses the two passes per band of output rows (the
 //! horizontal rows live in a small ring, not a whole-level intermediate), reads stored
 //! rows in place instead of copying them into a padded row, and on AVX-512 runs explicit
 //! intrinsic kernels that load each source vector once for several outputs (4 output rows
 //! in the vertical pass, 8 registers of neighbouring samples in the horizontal one). The
-//! finiteness check rides on the first level's conversion. The pre-s10 two-pass loops stay
+//! finiteness check rides on the first level's conversion. The plain two-pass loops stay
 //! callable ([`RowPath::two_pass_avx2`]) for the bench's before/after and as a test
 //! oracle; every path is compared bit for bit with the per-sample reference below and
 //! with each other in tests.rs.
@@ -213,7 +212,7 @@ impl Source<'_> {
                 // §2.1: displayed luminance per channel, then receptors, clamped ≥ 0 (a
                 // saturated red has a negative rod signal).
                 let (black, range, expo) = (d.black, d.range, d.exposure);
-                // s10: the input's finiteness is checked here, while the pixels are read
+                // The input's finiteness is checked here, while the pixels are read
                 // anyway, instead of by a separate pass over the image before (≈ 8 % of
                 // the decomposition). All-ones exponent bits = NaN or infinity.
                 const EXP: u32 = 0x7f80_0000;
@@ -332,7 +331,7 @@ fn accumulate_range(
     }
 }
 
-/// Explicit-intrinsic builds of [`accumulate`] (s10). The generic loop, inlined into the
+/// Explicit-intrinsic builds of [`accumulate`]. The generic loop, inlined into the
 /// fused band code, had its 16 accumulators spilled to the stack (a store and reload per
 /// chunk, the hottest instructions in the profile); intrinsics pin them in registers
 /// whatever the surrounding code. Same operations in the same order as [`accumulate`]:
@@ -600,7 +599,7 @@ mod simd {
     }
 
     /// Horizontal pass of one row with AVX-512, sharing loads between neighbouring
-    /// outputs (s10): register `i` of a chunk (4 output samples) reads tap `t` at source
+    /// outputs: register `i` of a chunk (4 output samples) reads tap `t` at source
     /// position `t + 4·step·i`, so one load at position `P` feeds every register with
     /// `P − 4·step·i` a tap index. Positions are visited in increasing order, so each
     /// output still sums its taps in order, first tap a plain product: bitwise the same
@@ -749,7 +748,7 @@ fn h_row(
     let left = (-lo).max(0) as usize;
     let len = left + sw + hi.max(0) as usize + step;
     if let (Source::Plane(p), true) = (src, direct) {
-        // s10: read a stored level's row in place instead of copying it into the pad
+        // Read a stored level's row in place instead of copying it into the pad
         // (the copy was the largest cost after the multiply-adds).
         let row = &p.data[y * sw..(y + 1) * sw];
         if step == 1 {
@@ -808,7 +807,7 @@ fn h_row(
 /// `q + step·i − left`, mirrored outside the row. One contiguous pass over the row's
 /// whole `step`-sample groups (each group's samples go to the `step` phases), then the
 /// few remaining and mirrored samples one by one. Two strided passes (one per phase) were
-/// ≈ 18 % of the decomposition in the s10 profile.
+/// ≈ 18 % of the decomposition in a profile.
 #[inline(always)]
 fn fill_phases(row: &[P4], step: usize, left: usize, plen: usize, phases: &mut [P4]) {
     const MAX_STEP: usize = 8;
@@ -926,7 +925,7 @@ fn h_row_direct(row: &[P4], spec: &LevelSpec, out: &mut [P4], isa: Isa) {
 fn v_row(tmp: &[P4], sh: usize, j: usize, spec: &LevelSpec, out: &mut [P4]) {
     let dw = out.len();
     let step = spec.step as usize;
-    // The pre-s10 loops: the generic `accumulate`, compiled for AVX2 by the wrapper.
+    // The two-pass path's loops: the generic `accumulate`, compiled for AVX2 by the wrapper.
     weighted_sum(
         out,
         &spec.kernel,
@@ -987,7 +986,7 @@ pub struct RowPath {
     /// Fused: each task runs a band of output rows, keeping the
     /// horizontal-pass rows it needs in a ring of `taps` rows (L1/L2-resident) instead of
     /// a whole-level intermediate (a 4 MB write + read per full-resolution level at 512²).
-    /// Unfused: the whole horizontal pass, then the whole vertical pass (the pre-s10 code,
+    /// Unfused: the whole horizontal pass, then the whole vertical pass (the older code,
     /// kept for the bench's before/after and as a test oracle).
     pub fused: bool,
     /// Output rows per fused band; 0 = chosen from the level size and the thread count.
@@ -1006,7 +1005,7 @@ impl RowPath {
         }
     }
 
-    /// The pre-s10 path: two whole-level passes, AVX2 when available.
+    /// The plain path: two whole-level passes, AVX2 when available.
     #[must_use]
     pub fn two_pass_avx2() -> Self {
         RowPath {
@@ -1065,7 +1064,7 @@ fn band(
     let (lo, hi) = (i64::from(lo), i64::from(hi));
     let taps = (hi - lo + 1) as usize;
     // Output rows per vertical-pass block: each loaded ring vector feeds up to `kb`
-    // output rows (one load per multiply-add was the kernel's limit; s10 measured about
+    // output rows (one load per multiply-add was the kernel's limit; measured about
     // 1.5× the multiply-add rate with 2–4 rows per load).
     let kb = match isa {
         Isa::Avx512 => 4,
@@ -1292,10 +1291,10 @@ fn fused_level(
 
 /// Bands per rayon thread in [`fused_level`]: 2 keeps the halo recomputation small
 /// (≈ 3–10 % of a level's horizontal rows at 512²) while leaving work to steal when one
-/// core is busy with something else. Not tuned beyond that (s10 ran on a loaded machine).
+/// core is busy with something else. Not tuned beyond that (measured on a loaded machine).
 const BANDS_PER_THREAD: usize = 2;
 
-/// The pre-s10 two-pass level: the whole horizontal pass into `tmp`, then the whole
+/// The two-pass level: the whole horizontal pass into `tmp`, then the whole
 /// vertical pass.
 fn two_pass_level(
     src: &Source,
@@ -1308,7 +1307,7 @@ fn two_pass_level(
 ) {
     let simd = isa >= Isa::Avx2;
     // Horizontal pass: each source row into `dw` samples. Every sample is overwritten, so
-    // the buffer only grows: shrinking it here (as before s10) made the next decomposition
+    // the buffer only grows: shrinking it here (as the first version did) made the next decomposition
     // zero-fill 4 MB when it took the scratch back from the pool.
     if tmp.len() < dw * sh {
         tmp.resize(dw * sh, [0f32; 4]);

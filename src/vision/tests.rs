@@ -289,7 +289,7 @@ fn recycled_level_buffers_give_identical_stacks() {
     assert_eq!(again.bytes(), bytes);
 }
 
-/// s10: every pyramid path (instruction set × two passes or fused bands) gives bitwise
+/// Every pyramid path (instruction set × two passes or fused bands) gives bitwise
 /// the two-pass stack, through the whole model (receptor conversion, every level), for odd
 /// sizes and pixel densities that change the kernels.
 #[test]
@@ -326,7 +326,7 @@ fn every_pyramid_path_gives_the_same_stack() {
     }
 }
 
-/// s10: the finiteness check moved into the first level's conversion. Every path still
+/// The finiteness check rides on the first level's conversion. Every path
 /// refuses NaN and ±∞ with the first offending pixel (row-major), including one in the last
 /// row and the first column, and the model decomposes a finite image normally afterwards
 /// (the discarded levels went back to the pool).

@@ -1,7 +1,6 @@
 //! Storage faults on demand, so tests can drive the real server binary through a full or
 //! unwritable disk at every write it makes, one write at a time, and clear the fault
-//! again without a restart (issue 14: "storage faults injected at every write of the
-//! store and the job files").
+//! again without a restart.
 //!
 //! `GLIMPSE_FAULTS=PATH` (read once, at the first write) names a rules file that is read
 //! again before every write of the store and of the job files. Each line names the
