@@ -233,12 +233,20 @@ async fn sixty_four_concurrent_eight_megabyte_submissions_peak_under_a_gigabyte(
                 .body(body)
                 .send()
                 .await
-                .map(|r| r.status().as_u16())
+                .map(|r| (r.status().as_u16(), r.headers().contains_key("retry-after")))
         }));
     }
+    // Each is refused for its content (422) or, when it waited long for its turn (a slow
+    // build on a loaded machine), told to come back (503 with Retry-After); never 408.
+    let mut refused = 0;
     for t in tasks {
-        assert_eq!(t.await.unwrap().unwrap(), 422);
+        match t.await.unwrap().unwrap() {
+            (422, _) => refused += 1,
+            (503, true) => {}
+            other => panic!("answer {other:?}"),
+        }
     }
+    assert!(refused >= 16, "only {refused} of 64 were validated");
     stop.cancel();
     let (peak, _) = sampler.await.unwrap();
     let hwm = proc_kib(pid, "VmHWM");

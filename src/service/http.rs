@@ -303,10 +303,28 @@ impl FromRequest<AppState> for SceneBody {
         let kib = u32::try_from(declared.div_ceil(1024).max(1))
             .unwrap_or(u32::MAX)
             .min(u32::try_from(state.upload_budget_kib).unwrap_or(u32::MAX));
-        let permit = Arc::clone(&state.uploads)
-            .acquire_many_owned(kib)
-            .await
-            .map_err(|_| ApiError::unavailable("the server is shutting down; retry later", 5))?;
+        // Waiting for room in the budget is the server's doing, not the client's: past a
+        // third of the request deadline the client is told to come back (503) rather than
+        // run into the deadline (408, which blames it).
+        let wait = state.request_deadline / 3;
+        let permit =
+            match tokio::time::timeout(wait, Arc::clone(&state.uploads).acquire_many_owned(kib))
+                .await
+            {
+                Ok(Ok(permit)) => permit,
+                Ok(Err(_)) => {
+                    return Err(ApiError::unavailable(
+                        "the server is shutting down; retry later",
+                        5,
+                    ))
+                }
+                Err(_) => {
+                    return Err(ApiError::unavailable(
+                        "the server is busy validating other submissions; retry later",
+                        5,
+                    ))
+                }
+            };
         let bytes = read_body(req, state).await.map_err(|mut e| {
             if e.code == ErrorCode::TooLarge {
                 e.message = format!(
