@@ -87,7 +87,7 @@ impl OriginPolicy {
         name.parse::<std::net::IpAddr>().is_ok()
             || name == "localhost"
             || name.ends_with(".localhost")
-            || self.names.iter().any(|n| *n == name)
+            || self.names.contains(&name)
     }
 
     /// Whether an `Origin` value is this server as the request's `Host` names it, or a

@@ -107,7 +107,7 @@ impl Classifier for Perceptual<'_> {
         let map = self.judge.distance(prev, v.cur, &seeds, v.iteration);
         let metric_ms = t.elapsed().as_secs_f64() * 1e3;
         let mut c = match map {
-            Some(map) if map.len() == v.samples.n => self.from_map(v, map),
+            Some(map) if map.len() == v.samples.n => self.classes_from(v, map),
             _ => Classification::uniform(TriangleClass::Smooth, count, true),
         };
         c.metric_ms = metric_ms;
@@ -130,7 +130,7 @@ impl Classifier for Perceptual<'_> {
 }
 
 impl Perceptual<'_> {
-    fn from_map(&mut self, v: &View, map: Image<f32>) -> Classification {
+    fn classes_from(&mut self, v: &View, map: Image<f32>) -> Classification {
         let raster = &v.mesh.raster;
         let mut td = triangle_distances(raster, map.pixels());
         let (sum, count) = map
