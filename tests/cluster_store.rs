@@ -61,7 +61,7 @@ async fn records_are_typed_and_listed_newest_first() {
         let list = store.list(None, 2).await.unwrap();
         let names: Vec<_> = list.iter().map(|j| j.name.as_str()).collect();
         assert_eq!(names, ["c", "b"], "{b}");
-        let claim = store.claim("w1", LEASE).await.unwrap().unwrap();
+        let claim = store.claim(Some("w1"), LEASE).await.unwrap().unwrap();
         assert_eq!(claim.id, ids[0], "{b}: the oldest job is claimed first");
         let error = JobError::new(ErrorCode::Timeout, "too long");
         let done = store
@@ -106,13 +106,16 @@ async fn concurrent_claims_take_each_job_once() {
         // 12 claimers race for 5 jobs: each job goes to exactly one of them.
         let claims = futures_util::future::join_all((0..12).map(|k| {
             let store = store.clone();
-            async move { store.claim(&format!("w{k}"), LEASE).await.unwrap() }
+            async move { store.claim(Some(&format!("w{k}")), LEASE).await.unwrap() }
         }))
         .await;
         let mut got: Vec<Uuid> = claims.iter().flatten().map(|c| c.id).collect();
         got.sort();
         assert_eq!(got, ids, "{b}");
-        assert!(store.claim("late", LEASE).await.unwrap().is_none(), "{b}");
+        assert!(
+            store.claim(Some("late"), LEASE).await.unwrap().is_none(),
+            "{b}"
+        );
     }
 }
 
@@ -122,7 +125,7 @@ async fn a_write_with_a_stale_attempt_token_is_refused() {
         let b = store.backend();
         let id = insert(&store, "contested").await;
         let first = store
-            .claim("worker-a", Duration::from_millis(50))
+            .claim(Some("worker-a"), Duration::from_millis(50))
             .await
             .unwrap()
             .unwrap();
@@ -141,7 +144,7 @@ async fn a_write_with_a_stale_attempt_token_is_refused() {
         tokio::time::sleep(Duration::from_millis(120)).await;
         let reaped = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
         assert_eq!(reaped.requeued, 1, "{b}");
-        let second = store.claim("worker-b", LEASE).await.unwrap().unwrap();
+        let second = store.claim(Some("worker-b"), LEASE).await.unwrap().unwrap();
         assert_eq!((second.id, second.attempt), (id, 2), "{b}");
         // worker-a comes back: every write it tries is refused and changes nothing.
         let late = store
@@ -222,7 +225,7 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
         let id = insert(&store, "poison").await;
         let short = Duration::from_millis(30);
         for attempt in 1..=MAX_LEASE_ATTEMPTS {
-            let c = store.claim("doomed", short).await.unwrap().unwrap();
+            let c = store.claim(Some("doomed"), short).await.unwrap().unwrap();
             assert_eq!((c.id, c.attempt), (id, attempt), "{b}");
             tokio::time::sleep(Duration::from_millis(80)).await;
             let r = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
@@ -243,10 +246,13 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
         let e = j.error.unwrap();
         assert_eq!(e.code, ErrorCode::Poison, "{b}");
         assert!(e.message.contains("3 attempts"), "{b}: {}", e.message);
-        assert!(store.claim("late", short).await.unwrap().is_none(), "{b}");
+        assert!(
+            store.claim(Some("late"), short).await.unwrap().is_none(),
+            "{b}"
+        );
         // A live lease is never reaped; an expired one with a cancel asked ends cancelled.
         let live = insert(&store, "live").await;
-        let c = store.claim("alive", LEASE).await.unwrap().unwrap();
+        let c = store.claim(Some("alive"), LEASE).await.unwrap().unwrap();
         assert_eq!(
             store.reap(MAX_LEASE_ATTEMPTS).await.unwrap(),
             Default::default(),
@@ -257,7 +263,7 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
             JobState::Running
         );
         let gone = insert(&store, "cancelled while its worker died").await;
-        let c2 = store.claim("dies", short).await.unwrap().unwrap();
+        let c2 = store.claim(Some("dies"), short).await.unwrap().unwrap();
         assert_eq!(c2.id, gone, "{b}");
         assert!(store.request_cancel(gone).await.unwrap());
         tokio::time::sleep(Duration::from_millis(80)).await;
