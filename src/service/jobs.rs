@@ -980,6 +980,11 @@ fn run_claim(inner: &Arc<Inner>, claim: &store::Claim) {
     };
     let live = LiveJob::new(job.clone());
     lock(&inner.live).insert(id, Arc::clone(&live));
+    if inner.shutting_down.load(Ordering::SeqCst) {
+        // Claimed while the node began to stop (after its renders were cancelled): the
+        // render stops at once and the job is released.
+        live.cancel.cancel();
+    }
     inner.claimed.send_modify(|n| *n += 1);
     tracing::info!(%id, attempt = claim.attempt, state = "running", "job started");
     inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
