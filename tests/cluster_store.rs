@@ -379,3 +379,89 @@ async fn healthz_says_whether_the_node_reaches_its_database() {
     let _ = stop.send(());
     let _ = tokio::time::timeout(Duration::from_secs(15), server).await;
 }
+
+/// Renders nothing until it is cancelled (a render long enough to lose its lease in).
+fn until_cancelled(
+    _scene: &glimpse::scene::Scene,
+    _on_frame: &mut dyn FnMut(&glimpse::progressive::Frame),
+    cancel: &glimpse::cancel::CancelToken,
+) -> Result<glimpse::progressive::Frame, glimpse::cancel::Cancelled> {
+    while !cancel.is_cancelled() {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Err(glimpse::cancel::Cancelled)
+}
+
+const SPHERE: &str = r#"{"version": 1, "image": {"width": 8, "height": 6},
+    "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40},
+    "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "w"}]}"#;
+
+/// The service's side of a lost lease: a worker presumed dead (its job taken back while
+/// it still renders) learns it from its next heartbeat, stops and writes nothing; the
+/// job's next attempt is a new claim.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_that_lost_its_lease_stops_and_writes_nothing() {
+    use glimpse::service::jobs::{Jobs, Node, DEFAULT_JOB_TIMEOUT};
+    use glimpse::service::metrics::Metrics;
+    use sqlx::Connection;
+    use std::sync::atomic::Ordering;
+    let url = common::fresh_pg_database().await;
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::connect(&Database::Postgres(url.clone()), dir.path())
+        .await
+        .unwrap();
+    let metrics = std::sync::Arc::new(Metrics::default());
+    let node = Node {
+        name: Some("n1".to_owned()),
+        workers: 1,
+        lease: Duration::from_secs(1),
+    };
+    let jobs = Jobs::start_with(
+        store.clone(),
+        node,
+        glimpse::service::server_limits(),
+        8,
+        DEFAULT_JOB_TIMEOUT,
+        std::sync::Arc::clone(&metrics),
+        until_cancelled,
+    )
+    .await
+    .unwrap();
+    let id = jobs.submit("victim", SPHERE).await.unwrap().id;
+    let until = |what: &'static str| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        move || assert!(std::time::Instant::now() < deadline, "{what}")
+    };
+    let check = until("never claimed");
+    while store.get(id).await.unwrap().unwrap().state != JobState::Running {
+        check();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // Taken back in one statement, as the reaper does once a lease has expired.
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    sqlx::query("UPDATE jobs SET state = 'queued', started_at = NULL, lease_token = NULL, lease_expires_at = NULL WHERE id = $1")
+        .bind(id.to_string())
+        .execute(&mut db)
+        .await
+        .unwrap();
+    // The next heartbeat (every 100 ms) finds the lease gone; the worker, free again,
+    // claims the job anew.
+    let check = until("the lost lease was never noticed, or the job never claimed again");
+    loop {
+        let j = store.get(id).await.unwrap().unwrap();
+        if j.attempt == 2 && j.state == JobState::Running {
+            break;
+        }
+        check();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    assert_eq!(metrics.lease_losses.load(Ordering::Relaxed), 1);
+    assert_eq!(metrics.claims.load(Ordering::Relaxed), 2);
+    // The first attempt wrote no end: the job is not finished and has no image.
+    let j = store.get(id).await.unwrap().unwrap();
+    assert!(j.finished_at.is_none() && !j.has_frame, "{j:?}");
+    let image = store.layer_path(id, glimpse::service::store::Layer::Image, false);
+    assert!(std::fs::read(&image).unwrap_or_default().is_empty());
+    jobs.shutdown().await;
+}
