@@ -82,7 +82,10 @@ def http(method, url, body=None):
 
 
 def batch(server, workers, jobs, size, spp):
-    """Seconds from the first submission to the last job's end, with `workers` workers."""
+    """Seconds from the first submission to the last job's end, with `workers` workers,
+    and the jobs' mean render time (their `stats.total_ms`): when the second worker's
+    batch is not twice as fast, this says whether its renders were slower (the cores
+    were busy with other work) or the workers idle."""
     db = fresh_database(server)
     procs = []
     with tempfile.TemporaryDirectory() as data:
@@ -109,15 +112,17 @@ def batch(server, workers, jobs, size, spp):
             t0 = time.monotonic()
             ids = [http("POST", base + "/v1/jobs", scene(k + 1, size, spp))["id"] for k in range(jobs)]
             left = set(ids)
+            render_ms = []
             while left:
                 for i in list(left):
                     j = http("GET", f"{base}/v1/jobs/{i}")
                     if j["state"] == "succeeded":
                         left.discard(i)
+                        render_ms.append(j["stats"]["total_ms"])
                     elif j["state"] in ("failed", "cancelled"):
                         sys.exit(f"job {i} ended {j['state']}: {j}")
                 time.sleep(0.02)
-            return time.monotonic() - t0
+            return time.monotonic() - t0, statistics.mean(render_ms) / 1e3
         finally:
             for p in procs:
                 p.terminate()
@@ -136,9 +141,10 @@ def main():
     times = {1: [], 2: []}
     for r in range(a.repeat):
         for w in (1, 2):
-            t = batch(server, w, a.jobs, a.size, a.spp)
+            t, per_job = batch(server, w, a.jobs, a.size, a.spp)
             times[w].append(t)
-            print(f"run {r + 1}: {w} worker(s), {a.jobs} jobs: {t:.2f} s", flush=True)
+            print(f"run {r + 1}: {w} worker(s), {a.jobs} jobs: {t:.2f} s "
+                  f"(a job's render: {per_job:.2f} s on average)", flush=True)
     one, two = statistics.median(times[1]), statistics.median(times[2])
     print(f"median: 1 worker {one:.2f} s, 2 workers {two:.2f} s; ratio 2/1 = {two / one:.2f}")
 

@@ -307,6 +307,7 @@ pub struct StoredFrame {
 /// What a stream follows ([`Jobs::watch`]).
 pub enum Watch {
     NotFound,
+    /// Snapshots of a job not yet finished: its worker's own, or relayed ([`relay`]).
     Live(watch::Receiver<Arc<Snapshot>>),
     Stored(Box<JobRecord>, Option<StoredFrame>),
 }
@@ -624,9 +625,11 @@ impl Jobs {
         self.inner.live(id)
     }
 
-    /// One layer of a job's latest frame: from memory while the job is live (encoded
-    /// once per frame and shared by every request, `LiveFrame::encoded_blocking`), from
-    /// its stored file once it is finished. The one place that decides "live or stored".
+    /// One layer of a job's latest frame: from memory while a worker of this node runs
+    /// it (encoded once per frame and shared by every request,
+    /// `LiveFrame::encoded_blocking`), from the frame a worker on another node relayed
+    /// (the image layer only, [`relay`]), from its stored file once it is finished. The
+    /// one place that decides "live, relayed or stored".
     pub async fn frame(
         &self,
         id: Uuid,
