@@ -259,10 +259,11 @@ async fn killed_workers_nodes_and_database_lose_no_job_and_a_cancel_crosses_node
     let w1 = cl.worker("w1");
     let _w2 = cl.worker("w2");
 
-    // Six jobs of 1-3 s each on one thread, submitted to node A.
+    // Six jobs of ~2 s each on one thread (0.3 s at 96 spp was too short to be caught
+    // running), submitted to node A.
     let mut ids = Vec::new();
     for k in 0..6u64 {
-        ids.push(common::submit(&cl.c, &a, &scene(k + 1, 128, 96, "progressive")).await);
+        ids.push(common::submit(&cl.c, &a, &scene(k + 1, 128, 640, "progressive")).await);
     }
     // A watcher on node B follows the first job, whichever worker renders it.
     let ws_b = b.replace("http://", "ws://");
@@ -273,7 +274,12 @@ async fn killed_workers_nodes_and_database_lose_no_job_and_a_cancel_crosses_node
     let killed = 'found: loop {
         for id in &ids {
             let j = common::job(&cl.c, &b, id).await;
-            if j["worker"] == "w1" && j["state"] == "running" && !j["progress"].is_null() {
+            // In its render (a relayed frame) and not about to end (no time left
+            // known yet, or more than half a second), so that it cannot finish between
+            // this look and the kill.
+            let p = &j["progress"];
+            let early = !p.is_null() && p["eta_ms"].as_u64().is_none_or(|ms| ms > 500);
+            if j["worker"] == "w1" && j["state"] == "running" && early {
                 break 'found id.clone();
             }
         }
