@@ -61,7 +61,7 @@ async fn records_are_typed_and_listed_newest_first() {
         let list = store.list(None, 2).await.unwrap();
         let names: Vec<_> = list.iter().map(|j| j.name.as_str()).collect();
         assert_eq!(names, ["c", "b"], "{b}");
-        let claim = store.claim("w1", LEASE).await.unwrap().unwrap();
+        let claim = store.claim(Some("w1"), LEASE).await.unwrap().unwrap();
         assert_eq!(claim.id, ids[0], "{b}: the oldest job is claimed first");
         let error = JobError::new(ErrorCode::Timeout, "too long");
         let done = store
@@ -106,13 +106,16 @@ async fn concurrent_claims_take_each_job_once() {
         // 12 claimers race for 5 jobs: each job goes to exactly one of them.
         let claims = futures_util::future::join_all((0..12).map(|k| {
             let store = store.clone();
-            async move { store.claim(&format!("w{k}"), LEASE).await.unwrap() }
+            async move { store.claim(Some(&format!("w{k}")), LEASE).await.unwrap() }
         }))
         .await;
         let mut got: Vec<Uuid> = claims.iter().flatten().map(|c| c.id).collect();
         got.sort();
         assert_eq!(got, ids, "{b}");
-        assert!(store.claim("late", LEASE).await.unwrap().is_none(), "{b}");
+        assert!(
+            store.claim(Some("late"), LEASE).await.unwrap().is_none(),
+            "{b}"
+        );
     }
 }
 
@@ -122,7 +125,7 @@ async fn a_write_with_a_stale_attempt_token_is_refused() {
         let b = store.backend();
         let id = insert(&store, "contested").await;
         let first = store
-            .claim("worker-a", Duration::from_millis(50))
+            .claim(Some("worker-a"), Duration::from_millis(50))
             .await
             .unwrap()
             .unwrap();
@@ -141,7 +144,7 @@ async fn a_write_with_a_stale_attempt_token_is_refused() {
         tokio::time::sleep(Duration::from_millis(120)).await;
         let reaped = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
         assert_eq!(reaped.requeued, 1, "{b}");
-        let second = store.claim("worker-b", LEASE).await.unwrap().unwrap();
+        let second = store.claim(Some("worker-b"), LEASE).await.unwrap().unwrap();
         assert_eq!((second.id, second.attempt), (id, 2), "{b}");
         // worker-a comes back: every write it tries is refused and changes nothing.
         let late = store
@@ -222,7 +225,7 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
         let id = insert(&store, "poison").await;
         let short = Duration::from_millis(30);
         for attempt in 1..=MAX_LEASE_ATTEMPTS {
-            let c = store.claim("doomed", short).await.unwrap().unwrap();
+            let c = store.claim(Some("doomed"), short).await.unwrap().unwrap();
             assert_eq!((c.id, c.attempt), (id, attempt), "{b}");
             tokio::time::sleep(Duration::from_millis(80)).await;
             let r = store.reap(MAX_LEASE_ATTEMPTS).await.unwrap();
@@ -243,10 +246,13 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
         let e = j.error.unwrap();
         assert_eq!(e.code, ErrorCode::Poison, "{b}");
         assert!(e.message.contains("3 attempts"), "{b}: {}", e.message);
-        assert!(store.claim("late", short).await.unwrap().is_none(), "{b}");
+        assert!(
+            store.claim(Some("late"), short).await.unwrap().is_none(),
+            "{b}"
+        );
         // A live lease is never reaped; an expired one with a cancel asked ends cancelled.
         let live = insert(&store, "live").await;
-        let c = store.claim("alive", LEASE).await.unwrap().unwrap();
+        let c = store.claim(Some("alive"), LEASE).await.unwrap().unwrap();
         assert_eq!(
             store.reap(MAX_LEASE_ATTEMPTS).await.unwrap(),
             Default::default(),
@@ -257,7 +263,7 @@ async fn the_reaper_is_idempotent_and_stops_after_three_attempts() {
             JobState::Running
         );
         let gone = insert(&store, "cancelled while its worker died").await;
-        let c2 = store.claim("dies", short).await.unwrap().unwrap();
+        let c2 = store.claim(Some("dies"), short).await.unwrap().unwrap();
         assert_eq!(c2.id, gone, "{b}");
         assert!(store.request_cancel(gone).await.unwrap());
         tokio::time::sleep(Duration::from_millis(80)).await;
@@ -372,4 +378,90 @@ async fn healthz_says_whether_the_node_reaches_its_database() {
     assert_eq!(status, 200, "{body}");
     let _ = stop.send(());
     let _ = tokio::time::timeout(Duration::from_secs(15), server).await;
+}
+
+/// Renders nothing until it is cancelled (a render long enough to lose its lease in).
+fn until_cancelled(
+    _scene: &glimpse::scene::Scene,
+    _on_frame: &mut dyn FnMut(&glimpse::progressive::Frame),
+    cancel: &glimpse::cancel::CancelToken,
+) -> Result<glimpse::progressive::Frame, glimpse::cancel::Cancelled> {
+    while !cancel.is_cancelled() {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Err(glimpse::cancel::Cancelled)
+}
+
+const SPHERE: &str = r#"{"version": 1, "image": {"width": 8, "height": 6},
+    "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40},
+    "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "w"}]}"#;
+
+/// The service's side of a lost lease: a worker presumed dead (its job taken back while
+/// it still renders) learns it from its next heartbeat, stops and writes nothing; the
+/// job's next attempt is a new claim.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_worker_that_lost_its_lease_stops_and_writes_nothing() {
+    use glimpse::service::jobs::{Jobs, Node, DEFAULT_JOB_TIMEOUT};
+    use glimpse::service::metrics::Metrics;
+    use sqlx::Connection;
+    use std::sync::atomic::Ordering;
+    let url = common::fresh_pg_database().await;
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::connect(&Database::Postgres(url.clone()), dir.path())
+        .await
+        .unwrap();
+    let metrics = std::sync::Arc::new(Metrics::default());
+    let node = Node {
+        name: Some("n1".to_owned()),
+        workers: 1,
+        lease: Duration::from_secs(1),
+    };
+    let jobs = Jobs::start_with(
+        store.clone(),
+        node,
+        glimpse::service::server_limits(),
+        8,
+        DEFAULT_JOB_TIMEOUT,
+        std::sync::Arc::clone(&metrics),
+        until_cancelled,
+    )
+    .await
+    .unwrap();
+    let id = jobs.submit("victim", SPHERE).await.unwrap().id;
+    let until = |what: &'static str| {
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        move || assert!(std::time::Instant::now() < deadline, "{what}")
+    };
+    let check = until("never claimed");
+    while store.get(id).await.unwrap().unwrap().state != JobState::Running {
+        check();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // Taken back in one statement, as the reaper does once a lease has expired.
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    sqlx::query("UPDATE jobs SET state = 'queued', started_at = NULL, lease_token = NULL, lease_expires_at = NULL WHERE id = $1")
+        .bind(id.to_string())
+        .execute(&mut db)
+        .await
+        .unwrap();
+    // The next heartbeat (every 100 ms) finds the lease gone; the worker, free again,
+    // claims the job anew.
+    let check = until("the lost lease was never noticed, or the job never claimed again");
+    loop {
+        let j = store.get(id).await.unwrap().unwrap();
+        if j.attempt == 2 && j.state == JobState::Running {
+            break;
+        }
+        check();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    assert_eq!(metrics.lease_losses.load(Ordering::Relaxed), 1);
+    assert_eq!(metrics.claims.load(Ordering::Relaxed), 2);
+    // The first attempt wrote no end: the job is not finished and has no image.
+    let j = store.get(id).await.unwrap().unwrap();
+    assert!(j.finished_at.is_none() && !j.has_frame, "{j:?}");
+    let image = store.layer_path(id, glimpse::service::store::Layer::Image, false);
+    assert!(std::fs::read(&image).unwrap_or_default().is_empty());
+    jobs.shutdown().await;
 }

@@ -24,6 +24,9 @@ pub struct Cli {
 pub enum Command {
     /// Run the render service (REST, WebSocket, viewer).
     Serve(ServeArgs),
+    /// Run a worker node: render jobs claimed from a shared PostgreSQL database, one at
+    /// a time (shared/spec/cluster.md).
+    Worker(WorkerArgs),
     /// Render one scene without a server.
     Render(render::RenderArgs),
     /// Import a scene (.pbrt, .gltf, .glb, .obj) and write the scene document Glimpse
@@ -45,9 +48,17 @@ pub struct ServeArgs {
     #[arg(long, default_value = "./glimpse-data", value_name = "DIR")]
     pub data: PathBuf,
     /// Jobs rendered at once; each render uses every core, so more than 1 only helps
-    /// short jobs wait less behind long ones.
+    /// short jobs wait less behind long ones. 0 (with a postgres:// database) makes an
+    /// API node that only serves, leaving the rendering to worker nodes.
     #[arg(long, default_value_t = 1, value_name = "N")]
     pub workers: usize,
+    /// This node's name in the jobs it claims on a shared database (default HOST-PID).
+    #[arg(long, value_name = "NAME")]
+    pub name: Option<String>,
+    /// Seconds a claimed job's lease lasts: a node silent for this long is presumed dead
+    /// and its job runs again elsewhere. Heartbeats come ten times per lease.
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_LEASE.as_secs_f64(), value_parser = lease_seconds, value_name = "SECONDS")]
+    pub lease: f64,
     /// Where the jobs live: `sqlite://DIR` (the same as `--data DIR`) or
     /// `postgres://USER@HOST/DB` (shared/spec/cluster.md); the password may come from
     /// `PGPASSWORD`.
@@ -93,6 +104,35 @@ pub struct ServeArgs {
     pub log_format: LogFormat,
 }
 
+#[derive(clap::Args, Debug)]
+pub struct WorkerArgs {
+    /// The shared job database: `postgres://USER@HOST/DB` (the password may come from
+    /// `PGPASSWORD`).
+    #[arg(long, value_parser = crate::service::store::Database::parse)]
+    pub database: crate::service::store::Database,
+    /// The folder of the jobs' images: the same shared storage every node of the
+    /// cluster names with `--data` (README "Running a cluster").
+    #[arg(long, default_value = "./glimpse-data", value_name = "DIR")]
+    pub data: PathBuf,
+    /// Threads per render (default: every core).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub threads: Option<u16>,
+    /// This worker's name in the jobs it claims (default HOST-PID).
+    #[arg(long, value_name = "NAME")]
+    pub name: Option<String>,
+    /// Seconds a claimed job's lease lasts: a worker silent for this long is presumed
+    /// dead and its job runs again elsewhere. Heartbeats come ten times per lease.
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_LEASE.as_secs_f64(), value_parser = lease_seconds, value_name = "SECONDS")]
+    pub lease: f64,
+    /// Seconds a render may run before it is stopped and its job failed (`timeout`).
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
+    pub job_timeout: f64,
+    /// Log format on stderr: `text` for people, `json` (one object per line) for log
+    /// collectors.
+    #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
+}
+
 /// How `main` formats tracing output.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum LogFormat {
@@ -107,6 +147,7 @@ impl Cli {
     pub fn log_format(&self) -> LogFormat {
         match &self.command {
             Command::Serve(a) => a.log_format,
+            Command::Worker(a) => a.log_format,
             _ => LogFormat::Text,
         }
     }
@@ -170,14 +211,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Compare(a) => compare::run(&a),
         Command::Convert(a) => convert::run(&a),
         Command::Serve(a) => serve(a),
+        Command::Worker(a) => worker(a),
         Command::Bench(a) => bench(&a),
     }
 }
 
 fn serve(a: ServeArgs) -> anyhow::Result<()> {
-    if a.workers == 0 {
-        anyhow::bail!("--workers must be at least 1");
-    }
     if a.queue == 0 {
         anyhow::bail!("--queue must be at least 1");
     }
@@ -205,6 +244,8 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         let mut config = crate::service::Config::new(a.data);
         config.database = a.database;
         config.workers = a.workers;
+        config.node_name = a.name;
+        config.lease = std::time::Duration::from_secs_f64(a.lease);
         config.token = a.token;
         config.queue_capacity = a.queue;
         config.max_body_bytes = a.max_body;
@@ -222,6 +263,31 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         }
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// `glimpse worker`: a rayon pool of `--threads`, then the worker until Ctrl-C or SIGTERM.
+fn worker(a: WorkerArgs) -> anyhow::Result<()> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(usize::from(n))
+            .build_global()
+            .context("cannot start the render threads")?;
+    }
+    let mut config = crate::service::Config::new(a.data);
+    config.database = Some(a.database);
+    config.node_name = a.name;
+    config.lease = std::time::Duration::from_secs_f64(a.lease);
+    config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(crate::service::run_worker(config, shutdown_signal()))
+}
+
+/// A lease in seconds: from 1 s (ten heartbeats of 100 ms) to an hour.
+fn lease_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && (1.0..=3600.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} must be a number of seconds from 1 to 3600")),
+    }
 }
 
 /// A finite number at least 0 and at most 10^6 (days or gigabytes).

@@ -96,7 +96,7 @@ impl Keeper {
                 let mut kept = Vec::new();
                 for lf in rx {
                     if let Err(e) = keep(&job_dir, &lf, &mut kept) {
-                        tracing::warn!(iteration = lf.frame.iteration, "not kept: {e}");
+                        tracing::warn!(iteration = lf.iteration, "not kept: {e}");
                     }
                     done.fetch_sub(pixels(&lf), Ordering::SeqCst);
                 }
@@ -123,7 +123,7 @@ impl Keeper {
     /// frames waiting already hold [`WAITING_PIXELS`].
     pub fn offer(&self, lf: &Arc<LiveFrame>) {
         let Some(tx) = &self.tx else { return };
-        if lf.frame.last || lf.frame.preview {
+        if lf.is_last() || lf.preview {
             return;
         }
         let px = pixels(lf);
@@ -134,7 +134,7 @@ impl Keeper {
             })
             .is_ok();
         if !admitted {
-            tracing::debug!(iteration = lf.frame.iteration, "writer behind: not kept");
+            tracing::debug!(iteration = lf.iteration, "writer behind: not kept");
         } else if tx.send(Arc::clone(lf)).is_err() {
             self.waiting.fetch_sub(px, Ordering::SeqCst);
         }
@@ -151,7 +151,7 @@ impl Drop for Keeper {
 }
 
 fn pixels(lf: &LiveFrame) -> usize {
-    lf.frame.image.width() as usize * lf.frame.image.height() as usize
+    lf.pixel_count()
 }
 
 /// Writes one frame's kept layers, then removes what the bounds no longer allow.
@@ -162,7 +162,7 @@ fn keep(job_dir: &std::path::Path, lf: &LiveFrame, kept: &mut Vec<Kept>) -> Resu
             layers.push((layer, png));
         }
     }
-    let iteration = lf.frame.iteration;
+    let iteration = lf.iteration;
     let bytes =
         store::write_iteration_blocking(job_dir, iteration, &layers).map_err(|e| e.to_string())?;
     kept.retain(|k| k.iteration != iteration);

@@ -1,30 +1,41 @@
-//! The job machinery: a bounded queue, a pool of dedicated worker threads, cancellation,
-//! and the state transitions of service-api.md (`queued → running → succeeded | failed |
-//! cancelled`, and `running → queued` on a graceful shutdown).
+//! The job machinery: workers that claim jobs from the store, cancellation, and the
+//! state transitions of service-api.md (`queued → running → succeeded | failed |
+//! cancelled`, and `running → queued` on a graceful shutdown or a lost worker).
+//!
+//! The store is the queue (cluster.md): a worker claims the oldest queued job in one
+//! statement, under a lease with an attempt token (`store/lease.rs`); [`lease`] keeps
+//! that lease with heartbeats (which also bring a cancel asked on any node) and reaps
+//! the leases of workers presumed dead. A job is rendered by whichever node claims it, so
+//! submitting never hands a job to a worker of this node directly: it wakes them.
 //!
 //! Renders never run on the async runtime (tokio docs, "CPU-bound tasks"): each worker is
-//! a plain `std::thread` that pops job ids from [`Queue`] and calls
-//! [`progressive::render`], which fans out on rayon. The worker talks to the store through
-//! `Handle::block_on` (it is not a runtime thread, so that is allowed and cheap).
+//! a plain `std::thread` that calls [`progressive::render`], which fans out on rayon. The
+//! worker talks to the store through `Handle::block_on` (it is not a runtime thread).
 //!
-//! Every running or queued job has a [`LiveJob`] with a `watch` channel holding the latest
-//! [`Snapshot`] (job object + latest frame): the WebSocket streams and `GET .../frame`
-//! read it; slow readers simply see the newest value (no unbounded buffering).
+//! Every job a worker of this node runs has a [`LiveJob`] with a `watch` channel holding
+//! the latest [`Snapshot`] (job object + latest frame): the WebSocket streams and `GET
+//! .../frame` read it; slow readers simply see the newest value. Jobs queued or running
+//! elsewhere are followed through the store and the shared job folder ([`relay`]).
 
 use super::error_code::ErrorCode;
 use super::metrics::Metrics;
 use super::store::health::WriteFaults;
-use super::store::{self, JobError, JobRecord, JobState, Layer, Progress, Store, StoreError};
+use super::store::{
+    self, JobError, JobRecord, JobState, Layer, LeaseToken, Progress, Store, StoreError,
+};
 use crate::cancel::CancelToken;
 use crate::progressive::eta::{Eta, EtaTracker};
 use crate::progressive::{self, layers, Frame, RenderOptions};
 use crate::scene::{parse_scene, Limits, SceneOrigin};
 use crate::tracer::PathTracer;
 use bytes::Bytes;
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+
+mod lease;
+mod relay;
 use std::time::Instant;
 use tokio::sync::watch;
 use uuid::Uuid;
@@ -36,99 +47,6 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 // ---------------------------------------------------------------------------------------
-// Queue
-
-/// FIFO of job ids with a capacity for new submissions. Jobs recovered at start-up are
-/// pushed regardless of the capacity: they were already accepted with a 201.
-pub struct Queue {
-    inner: Mutex<QueueInner>,
-    ready: Condvar,
-    capacity: usize,
-}
-
-struct QueueInner {
-    items: VecDeque<Uuid>,
-    /// Slots promised to submissions between the capacity check and the store insert.
-    reserved: usize,
-    closed: bool,
-}
-
-impl Queue {
-    fn new(capacity: usize) -> Self {
-        Self {
-            inner: Mutex::new(QueueInner {
-                items: VecDeque::new(),
-                reserved: 0,
-                closed: false,
-            }),
-            ready: Condvar::new(),
-            capacity,
-        }
-    }
-
-    /// Takes a slot if there is room (released by [`Self::push_reserved`] or [`Self::release`]).
-    fn try_reserve(&self) -> bool {
-        let mut q = lock(&self.inner);
-        if q.closed || q.items.len() + q.reserved >= self.capacity {
-            return false;
-        }
-        q.reserved += 1;
-        true
-    }
-
-    fn release(&self) {
-        let mut q = lock(&self.inner);
-        q.reserved = q.reserved.saturating_sub(1);
-    }
-
-    fn push_reserved(&self, id: Uuid) {
-        let mut q = lock(&self.inner);
-        q.reserved = q.reserved.saturating_sub(1);
-        q.items.push_back(id);
-        self.ready.notify_one();
-    }
-
-    fn push_force(&self, id: Uuid) {
-        lock(&self.inner).items.push_back(id);
-        self.ready.notify_one();
-    }
-
-    fn remove(&self, id: Uuid) {
-        lock(&self.inner).items.retain(|x| *x != id);
-    }
-
-    /// Blocks until a job is available; `None` once the queue is closed (shutdown).
-    fn pop(&self) -> Option<Uuid> {
-        let mut q = lock(&self.inner);
-        loop {
-            if q.closed {
-                return None;
-            }
-            if let Some(id) = q.items.pop_front() {
-                return Some(id);
-            }
-            q = self.ready.wait(q).unwrap_or_else(PoisonError::into_inner);
-        }
-    }
-
-    fn close(&self) {
-        lock(&self.inner).closed = true;
-        self.ready.notify_all();
-    }
-
-    /// Jobs waiting for a worker.
-    #[must_use]
-    pub fn len(&self) -> usize {
-        lock(&self.inner).items.len()
-    }
-
-    #[must_use]
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-}
-
-// ---------------------------------------------------------------------------------------
 // Live state
 
 /// One frame as the stream serves it. The PNG of the image layer is encoded at most once,
@@ -137,7 +55,12 @@ impl Queue {
 /// its copy, and a watcher that falls behind skips to the newest frame (the `watch`
 /// channel), so the encoder never works on frames nobody will see.
 pub struct LiveFrame {
-    pub frame: Frame,
+    pub iteration: u32,
+    /// A preview before the first iteration (`Frame::preview`): image layer only.
+    pub preview: bool,
+    /// The frame's pixels and layers; `None` for a frame relayed from a worker on
+    /// another node, which carries its image layer's PNG only ([`relay`]).
+    pixels: Option<Frame>,
     /// The scene's display exposure, for the `image` layer.
     pub exposure: f32,
     pub progress: Progress,
@@ -170,7 +93,9 @@ impl LiveFrame {
             .filter(|l| *l == Layer::Image || !frame.preview)
             .collect();
         Self {
-            frame,
+            iteration: frame.iteration,
+            preview: frame.preview,
+            pixels: Some(frame),
             exposure,
             progress,
             layers,
@@ -204,9 +129,40 @@ impl LiveFrame {
             .clone()
     }
 
+    /// A frame that another node rendered, or a finished job's stored one: its image
+    /// layer's PNG, and the layers the stored files hold.
+    fn relayed(progress: Progress, png: Bytes, layers: Vec<Layer>, metrics: Arc<Metrics>) -> Self {
+        Self {
+            iteration: progress.iteration,
+            preview: false,
+            pixels: None,
+            exposure: 1.0,
+            progress,
+            layers,
+            png: std::sync::OnceLock::from(Ok(png)),
+            others: Default::default(),
+            metrics,
+        }
+    }
+
+    /// True for the last frame of a render that ran to its end.
+    pub fn is_last(&self) -> bool {
+        self.pixels.as_ref().is_some_and(|f| f.last)
+    }
+
+    /// Pixels of the frame this node rendered (0 for a relayed one).
+    pub fn pixel_count(&self) -> usize {
+        self.pixels
+            .as_ref()
+            .map_or(0, |f| f.image.width() as usize * f.image.height() as usize)
+    }
+
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
     pub fn encode_layer_blocking(&self, layer: Layer) -> Result<Option<Vec<u8>>, String> {
-        layers::encode_layer(&self.frame, layer.as_str(), self.exposure).map_err(|e| e.to_string())
+        let Some(frame) = &self.pixels else {
+            return Ok(None);
+        };
+        layers::encode_layer(frame, layer.as_str(), self.exposure).map_err(|e| e.to_string())
     }
 
     /// One layer as PNG, or the image as EXR, encoded once and shared (`None` if the
@@ -220,12 +176,12 @@ impl LiveFrame {
         };
         self.others[k]
             .get_or_init(|| {
-                let bytes = if exr {
-                    crate::raster::encode_exr(&self.frame.image)
+                let bytes = match (&self.pixels, exr) {
+                    (None, _) => Ok(None),
+                    (Some(frame), true) => crate::raster::encode_exr(&frame.image)
                         .map(Some)
-                        .map_err(|e| e.to_string())
-                } else {
-                    self.encode_layer_blocking(layer)
+                        .map_err(|e| e.to_string()),
+                    (Some(_), false) => self.encode_layer_blocking(layer),
                 };
                 bytes.map(|b| b.map(Bytes::from))
             })
@@ -240,22 +196,21 @@ pub struct Snapshot {
     pub frame: Option<Arc<LiveFrame>>,
 }
 
-/// A job that is queued or running, or finished but still writing its secondary files
-/// (after that, finished jobs live only in the store).
+/// A job a worker of this node runs, from its claim until it is finished and its
+/// secondary files are written (after that, finished jobs live only in the store).
 pub struct LiveJob {
     pub id: Uuid,
     pub cancel: CancelToken,
-    /// Set by `POST .../cancel`; a cancel without it is a shutdown (the job is requeued).
+    /// Set by `POST .../cancel` (on this node, or on any node through the heartbeat); a
+    /// cancel without it or `lease_lost` is a shutdown (the job is released).
     user_cancelled: AtomicBool,
+    /// Set when the heartbeat finds the lease gone (presumed dead, the job went to
+    /// another worker): the render stops and writes nothing more.
+    lease_lost: AtomicBool,
     pub tx: watch::Sender<Arc<Snapshot>>,
     /// True once the worker is done with the job, files included (DELETE waits for it,
     /// so it never races the late writes).
     settled: watch::Sender<bool>,
-    /// The scene as the submission validated it, so the worker does not read the
-    /// document back from the store and parse it a second time (for an 8 MiB mesh that
-    /// is most of a second before the render starts). `None` for jobs recovered at
-    /// start-up: they are read and parsed from the store.
-    parsed: Mutex<Option<crate::scene::Scene>>,
 }
 
 impl LiveJob {
@@ -268,9 +223,9 @@ impl LiveJob {
             id: job.id,
             cancel: CancelToken::new(),
             user_cancelled: AtomicBool::new(false),
+            lease_lost: AtomicBool::new(false),
             tx,
             settled: watch::Sender::new(false),
-            parsed: Mutex::new(None),
         })
     }
 
@@ -374,6 +329,7 @@ pub struct KeptIteration {
 /// What a stream follows ([`Jobs::watch`]).
 pub enum Watch {
     NotFound,
+    /// Snapshots of a job not yet finished: its worker's own, or relayed ([`relay`]).
     Live(watch::Receiver<Arc<Snapshot>>),
     Stored(Box<JobRecord>, Option<StoredFrame>),
 }
@@ -404,15 +360,73 @@ pub fn render_scene(
     progressive::render(scene, &tracer, &RenderOptions::default(), on_frame, cancel)
 }
 
+/// How this node takes part in rendering (cluster.md).
+#[derive(Clone, Debug)]
+pub struct Node {
+    /// The `worker` recorded in the jobs this node claims; `None` on the embedded store,
+    /// whose one process is the only node (the job object's `worker` stays null there).
+    pub name: Option<String>,
+    /// Jobs rendered at once on this node; 0 makes a node that only serves.
+    pub workers: usize,
+    /// A claimed job's lease: a worker silent for this long is presumed dead and its job
+    /// is queued again by any node's reaper.
+    pub lease: std::time::Duration,
+}
+
+/// 20 s: a worker killed mid-render loses its job to another worker within 20 s (plus
+/// one reaper pass); ten heartbeats fit in it, so a database restart of a few seconds
+/// costs no lease.
+pub const DEFAULT_LEASE: std::time::Duration = std::time::Duration::from_secs(20);
+
+impl Node {
+    /// The embedded store's one node with `workers` workers.
+    #[must_use]
+    pub fn single(workers: usize) -> Self {
+        Self {
+            name: None,
+            workers,
+            lease: DEFAULT_LEASE,
+        }
+    }
+
+    /// How often a running job's lease is renewed (and its cancel flag read), and how
+    /// often the reaper looks for expired leases: ten times per lease.
+    #[must_use]
+    pub fn heartbeat(&self) -> std::time::Duration {
+        (self.lease / 10).max(std::time::Duration::from_millis(20))
+    }
+}
+
 struct Inner {
     store: Store,
+    node: Node,
     render: RenderFn,
     limits: Limits,
-    queue: Queue,
+    /// Queued jobs (in the store, all nodes together) beyond which submissions get 429.
+    queue_capacity: usize,
+    /// Submissions on this node between their capacity check and their insert, so that
+    /// concurrent ones cannot all pass the check.
+    reserved: tokio::sync::Mutex<usize>,
+    /// The jobs this node's workers run.
     live: Mutex<HashMap<Uuid, Arc<LiveJob>>>,
+    /// The jobs this node follows for its watchers without running them ([`relay`]).
+    relays: Mutex<HashMap<Uuid, watch::Sender<Arc<Snapshot>>>>,
+    /// Bumped by each submission on this node, each reaped lease and shutdown: wakes the
+    /// idle workers (jobs submitted on other nodes are found by polling, [`idle_poll`]).
+    work: (Mutex<u64>, Condvar),
+    /// Bumped each time a worker of this node claims a job: a relay of that job switches
+    /// to the worker's own channel at once.
+    claimed: watch::Sender<u64>,
+    /// The scene of the latest submission as it was validated, so that the worker which
+    /// claims it (usually one of this node's, at once) does not read the document back and
+    /// parse it a second time (for an 8 MiB mesh, most of a second). One at most: a
+    /// parsed million-triangle mesh is ~100 MB.
+    parsed: Mutex<Option<(Uuid, crate::scene::Scene)>>,
     metrics: Arc<Metrics>,
     rt: tokio::runtime::Handle,
     shutting_down: AtomicBool,
+    /// Ends the reaper and the relays on shutdown.
+    stop: tokio_util::sync::CancellationToken,
     /// A render running longer than this is stopped and its job failed (`timeout`).
     job_timeout: std::time::Duration,
     /// The kinds of store and job-file writes failing now (a full or unwritable disk):
@@ -427,6 +441,10 @@ struct Inner {
 type AfterDoneHook = Arc<dyn Fn(Uuid) + Send + Sync>;
 
 impl Inner {
+    fn live(&self, id: Uuid) -> Option<Arc<LiveJob>> {
+        lock(&self.live).get(&id).cloned()
+    }
+
     /// Records a failed store or file write (the disk may be full).
     fn write_failed(&self, what: &'static str, e: &dyn std::fmt::Display) {
         self.store_faults.failed(what, e);
@@ -435,6 +453,24 @@ impl Inner {
     /// A write of kind `what` succeeded: that kind works again.
     fn wrote(&self, what: &'static str) {
         self.store_faults.succeeded(what);
+    }
+
+    /// Wakes this node's idle workers: there may be a job to claim.
+    fn wake_workers(&self) {
+        *lock(&self.work.0) += 1;
+        self.work.1.notify_all();
+    }
+
+    /// The scene a submission on this node validated for job `id`, if it is still held.
+    fn take_parsed(&self, id: Uuid) -> Option<crate::scene::Scene> {
+        let mut p = lock(&self.parsed);
+        match p.take() {
+            Some((pid, scene)) if pid == id => Some(scene),
+            other => {
+                *p = other;
+                None
+            }
+        }
     }
 
     /// Runs a blocking `write` until it succeeds, pausing [`WRITE_RETRY`] after each
@@ -478,20 +514,23 @@ pub struct Jobs {
 }
 
 impl Jobs {
-    /// Recovers the store (service-api.md "Durability"), then starts `workers` threads.
-    /// Must be called from inside the tokio runtime.
+    /// Starts this node's part: on the embedded store, recovers it first (service-api.md
+    /// "Durability": this process is its only node, so a job found running was
+    /// interrupted by its crash); on a shared database, touches nobody's running jobs
+    /// (their workers may be alive: only expired leases are reaped). Then starts the
+    /// reaper and `node.workers` worker threads. Must be called inside the tokio runtime.
     pub async fn start(
         store: Store,
+        node: Node,
         limits: Limits,
-        workers: usize,
         queue_capacity: usize,
         job_timeout: std::time::Duration,
         metrics: Arc<Metrics>,
     ) -> Result<Self, StoreError> {
         Self::start_with(
             store,
+            node,
             limits,
-            workers,
             queue_capacity,
             job_timeout,
             metrics,
@@ -503,39 +542,44 @@ impl Jobs {
     /// [`Self::start`] with another renderer (tests).
     pub async fn start_with(
         store: Store,
+        node: Node,
         limits: Limits,
-        workers: usize,
         queue_capacity: usize,
         job_timeout: std::time::Duration,
         metrics: Arc<Metrics>,
         render: RenderFn,
     ) -> Result<Self, StoreError> {
-        let recovered = store.recover().await?;
+        if !store.is_shared() {
+            let recovered = store.recover().await?;
+            if !recovered.is_empty() {
+                tracing::info!(count = recovered.len(), "jobs queued again after a restart");
+            }
+        }
+        let workers = node.workers;
         let inner = Arc::new(Inner {
-            store: store.clone(),
+            store,
+            node,
             render,
             limits,
-            queue: Queue::new(queue_capacity.max(1)),
+            queue_capacity: queue_capacity.max(1),
+            reserved: tokio::sync::Mutex::new(0),
             live: Mutex::new(HashMap::new()),
+            relays: Mutex::new(HashMap::new()),
+            work: (Mutex::new(0), Condvar::new()),
+            claimed: watch::Sender::new(0),
+            parsed: Mutex::new(None),
             metrics,
             rt: tokio::runtime::Handle::current(),
             shutting_down: AtomicBool::new(false),
+            stop: tokio_util::sync::CancellationToken::new(),
             job_timeout,
             store_faults: WriteFaults::default(),
             workers: Mutex::new(Vec::new()),
             after_done: Mutex::new(None),
         });
-        for id in &recovered {
-            if let Some(rec) = store.get(*id).await? {
-                lock(&inner.live).insert(*id, LiveJob::new(rec));
-                inner.queue.push_force(*id);
-            }
-        }
-        if !recovered.is_empty() {
-            tracing::info!(count = recovered.len(), "re-enqueued jobs from the store");
-        }
+        tokio::spawn(lease::reap(Arc::clone(&inner)));
         let mut handles = Vec::new();
-        for k in 0..workers.max(1) {
+        for k in 0..workers {
             let inner2 = Arc::clone(&inner);
             let h = std::thread::Builder::new()
                 .name(format!("glimpse-worker-{k}"))
@@ -578,18 +622,26 @@ impl Jobs {
         &self.inner.limits
     }
 
+    /// Jobs waiting for a worker, all nodes together.
+    pub async fn queue_depth(&self) -> Result<i64, StoreError> {
+        self.inner.store.queued_count().await
+    }
+
+    /// This node's name in the jobs it claims (`None` on the embedded store).
     #[must_use]
-    pub fn queue_depth(&self) -> usize {
-        self.inner.queue.len()
+    pub fn node_name(&self) -> Option<&str> {
+        self.inner.node.name.as_deref()
     }
 
     fn live(&self, id: Uuid) -> Option<Arc<LiveJob>> {
-        lock(&self.inner.live).get(&id).cloned()
+        self.inner.live(id)
     }
 
-    /// One layer of a job's latest frame: from memory while the job is live (encoded
-    /// once per frame and shared by every request, `LiveFrame::encoded_blocking`), from
-    /// its stored file once it is finished. The one place that decides "live or stored".
+    /// One layer of a job's latest frame: from memory while a worker of this node runs
+    /// it (encoded once per frame and shared by every request,
+    /// `LiveFrame::encoded_blocking`), from the frame a worker on another node relayed
+    /// (the image layer only, [`relay`]), from its stored file once it is finished. The
+    /// one place that decides "live, relayed or stored".
     pub async fn frame(
         &self,
         id: Uuid,
@@ -614,6 +666,19 @@ impl Jobs {
         let Some(job) = self.inner.store.get(id).await? else {
             return Ok(FrameLookup::NotFound);
         };
+        if !job.state.is_finished() {
+            // Queued, or running on another node: its latest relayed frame, image only.
+            return Ok(match relay::latest_frame_path(&self.inner.store, &job) {
+                Some(path) if layer == Layer::Image && !exr => {
+                    match tokio::fs::try_exists(&path).await {
+                        Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
+                        _ => FrameLookup::NoFrame,
+                    }
+                }
+                Some(_) => FrameLookup::NoLayer,
+                None => FrameLookup::NoFrame,
+            });
+        }
         if !job.has_frame {
             return Ok(FrameLookup::NoFrame);
         }
@@ -637,7 +702,7 @@ impl Jobs {
         let live = self.live(id);
         // The live frame itself (not "the latest" looked up again, which may have moved on).
         let live_frame = live.as_ref().and_then(|l| l.snapshot().frame.clone());
-        if let Some(lf) = live_frame.filter(|f| f.frame.iteration == iteration) {
+        if let Some(lf) = live_frame.filter(|f| f.iteration == iteration) {
             let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, false))
                 .await
                 .map_err(|e| e.to_string())
@@ -677,7 +742,7 @@ impl Jobs {
                 .snapshot()
                 .frame
                 .as_ref()
-                .map(|f| (f.frame.iteration, f.layers.clone())),
+                .map(|f| (f.iteration, f.layers.clone())),
             None => {
                 let Some(job) = self.inner.store.get(id).await? else {
                     return Ok(None);
@@ -703,9 +768,10 @@ impl Jobs {
         ))
     }
 
-    /// What a stream of job `id` follows: the live snapshots while the job is queued or
-    /// running (and while its late files are written), else the finished record with
-    /// its stored final frame.
+    /// What a stream of job `id` follows: the live snapshots while a worker of this node
+    /// runs it (and while its late files are written); while it is queued or runs on
+    /// another node, the snapshots this node relays from the store and the job folder;
+    /// else the finished record with its stored final frame.
     pub async fn watch(&self, id: Uuid) -> Result<Watch, StoreError> {
         if let Some(live) = self.live(id) {
             return Ok(Watch::Live(live.tx.subscribe()));
@@ -713,6 +779,9 @@ impl Jobs {
         let Some(job) = self.inner.store.get(id).await? else {
             return Ok(Watch::NotFound);
         };
+        if !job.state.is_finished() {
+            return Ok(Watch::Live(relay::follow(&self.inner, job)));
+        }
         let frame = if job.has_frame {
             self.stored_frame(id).await
         } else {
@@ -742,13 +811,14 @@ impl Jobs {
     }
 
     /// Accepts a validated document: the record is committed before this returns
-    /// (so the caller's 201 is durable), then the job is queued.
+    /// (so the caller's 201 is durable); the job is then in the queue every node's
+    /// workers claim from, and this node's idle workers are woken.
     pub async fn submit(&self, name: &str, scene_json: &str) -> Result<JobRecord, SubmitError> {
         self.submit_parsed(name, scene_json, None).await
     }
 
     /// [`Self::submit`] with the scene `scene_json` parses to (under [`Self::limits`]),
-    /// handed to the worker as it is.
+    /// handed to this node's worker if one of them claims the job.
     pub async fn submit_parsed(
         &self,
         name: &str,
@@ -759,38 +829,50 @@ impl Jobs {
         if inner.shutting_down.load(Ordering::SeqCst) {
             return Err(SubmitError::ShuttingDown);
         }
-        if !inner.queue.try_reserve() {
-            return Err(SubmitError::QueueFull(inner.queue.len()));
-        }
+        self.reserve().await?;
         let id = Uuid::now_v7();
-        let rec = match inner.store.insert(id, name, scene_json).await {
+        if let Some(scene) = parsed {
+            // Before the insert: a worker may claim the job as soon as it is committed.
+            *lock(&inner.parsed) = Some((id, scene));
+        }
+        let inserted = inner.store.insert(id, name, scene_json).await;
+        *inner.reserved.lock().await -= 1;
+        let rec = match inserted {
             Ok(r) => {
                 inner.wrote("storing a new job");
                 r
             }
             Err(e) => {
-                inner.queue.release();
+                drop(inner.take_parsed(id));
                 inner.write_failed("storing a new job", &e);
                 return Err(e.into());
             }
         };
-        let live = LiveJob::new(rec.clone());
-        // Keep the parsed scene only if no job is waiting: then this one starts as soon
-        // as a worker is free, and at most one parsed scene waits in memory (a parsed
-        // million-triangle mesh is ~100 MB; 64 queued ones must not all be held).
-        if inner.queue.is_empty() {
-            *lock(&live.parsed) = parsed;
-        }
-        lock(&inner.live).insert(id, live);
-        inner.queue.push_reserved(id);
+        inner.wake_workers();
         inner.metrics.jobs_submitted.fetch_add(1, Ordering::Relaxed);
         // One log line per state transition, keyed by `id`, so an operator can follow a job.
         tracing::info!(%id, name, state = "queued", "job accepted");
         Ok(rec)
     }
 
-    /// The job as it is now: the live snapshot while queued/running (it carries the
-    /// progress), the store otherwise.
+    /// Takes a place in the queue if there is room: fewer than the capacity queued in
+    /// the store (all nodes together) and being inserted on this node. Two nodes may
+    /// each let one submission past a full queue at the same moment; no more.
+    async fn reserve(&self) -> Result<(), SubmitError> {
+        let inner = &self.inner;
+        let mut reserved = inner.reserved.lock().await;
+        let queued = inner.store.queued_count().await?;
+        let queued = usize::try_from(queued).unwrap_or(usize::MAX);
+        if queued.saturating_add(*reserved) >= inner.queue_capacity {
+            return Err(SubmitError::QueueFull(queued));
+        }
+        *reserved += 1;
+        Ok(())
+    }
+
+    /// The job as it is now: the live snapshot while this node runs it (it carries the
+    /// progress of every frame), the store otherwise (where a worker on another node
+    /// records its progress with each heartbeat).
     pub async fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError> {
         if let Some(live) = self.live(id) {
             return Ok(Some(live.snapshot().job.clone()));
@@ -841,6 +923,9 @@ impl Jobs {
         Ok(jobs)
     }
 
+    /// Cancels a queued or running job. The request is durable before this returns
+    /// (a restart ends the job cancelled); a render on this node stops at its next batch
+    /// of pixels, one on another node at its worker's next heartbeat.
     pub async fn cancel(&self, id: Uuid) -> Result<CancelOutcome, StoreError> {
         let Some(rec) = self.get(id).await? else {
             return Ok(CancelOutcome::NotFound);
@@ -848,14 +933,12 @@ impl Jobs {
         if rec.state.is_finished() {
             return Ok(CancelOutcome::AlreadyFinished(rec));
         }
-        // Durable before the 202: a restart finishes the job as cancelled, not runs it.
         if let Err(e) = self.inner.store.request_cancel(id).await {
             self.inner.write_failed("recording a cancel", &e);
             return Err(e);
         }
         self.inner.wrote("recording a cancel");
-        let live = self.live(id);
-        if let Some(l) = &live {
+        if let Some(l) = self.live(id) {
             // Flag first, then the token: the worker reads the flag after seeing the token.
             l.user_cancelled.store(true, Ordering::SeqCst);
             l.cancel.cancel();
@@ -866,25 +949,25 @@ impl Jobs {
                 c
             }
             Err(e) => {
-                // The cancel is recorded and the token set: the worker that takes the
-                // job finishes it as cancelled (`finish_cancelled_in_queue`).
+                // The cancel is recorded, so no worker claims the job any more: the write
+                // that finishes it is retried until the disk takes it.
                 self.inner.write_failed("cancelling a queued job", &e);
+                let inner = Arc::clone(&self.inner);
+                tokio::task::spawn_blocking(move || {
+                    inner.write_until_done("cancelling a queued job", || {
+                        inner.rt.block_on(inner.store.cancel_queued(id)).map(|_| ())
+                    })
+                });
                 false
             }
         };
         if cancelled_queued {
-            // It never started: finished now, and its queue slot is free at once.
-            self.inner.queue.remove(id);
+            // Never claimed: finished now, and its place in the queue is free at once.
             tracing::info!(%id, state = "cancelled", ms = 0u64, "job finished (cancelled while queued)");
             let rec = self.inner.store.get(id).await?.unwrap_or(rec);
-            if let Some(l) = live {
-                l.publish(rec.clone(), None);
-            }
-            lock(&self.inner.live).remove(&id);
             return Ok(CancelOutcome::Accepted(rec));
         }
-        // Running: the worker sees the token between pixel batches and finishes the job
-        // as `cancelled`, keeping its latest frame.
+        // Running: the worker finishes the job as `cancelled`, keeping its latest frame.
         Ok(CancelOutcome::Accepted(self.get(id).await?.unwrap_or(rec)))
     }
 
@@ -918,17 +1001,25 @@ impl Jobs {
         }
     }
 
-    /// Graceful stop, in this order: refuse new submissions; close the queue so idle
-    /// workers exit; cancel running renders (they stop at the next pixel batch and their
-    /// jobs go back to `queued` in the store, to run again after a restart); join the
-    /// workers; close the database.
-    pub async fn shutdown(&self) {
+    /// The first step of [`Self::shutdown`], at once when the stop is asked (not after
+    /// the requests in flight are drained): no new submission or claim, and every
+    /// running render stops at its next batch of pixels.
+    pub fn stop_rendering(&self) {
         let inner = &self.inner;
         inner.shutting_down.store(true, Ordering::SeqCst);
-        inner.queue.close();
+        inner.wake_workers();
         for l in lock(&inner.live).values() {
             l.cancel.cancel();
         }
+    }
+
+    /// Graceful stop, in this order: refuse new submissions; wake idle workers so they
+    /// exit; cancel running renders (they stop at the next pixel batch and release their
+    /// jobs to `queued`, for any node to run again); join the workers; stop the reaper
+    /// and relays; close the database.
+    pub async fn shutdown(&self) {
+        self.stop_rendering();
+        let inner = &self.inner;
         let handles = std::mem::take(&mut *lock(&inner.workers));
         let _ = tokio::task::spawn_blocking(move || {
             for h in handles {
@@ -936,6 +1027,7 @@ impl Jobs {
             }
         })
         .await;
+        inner.stop.cancel();
         inner.store.close().await;
     }
 }
@@ -943,76 +1035,92 @@ impl Jobs {
 // ---------------------------------------------------------------------------------------
 // Workers
 
-fn worker_loop(inner: &Arc<Inner>) {
-    while let Some(id) = inner.queue.pop() {
-        let Some(live) = lock(&inner.live).get(&id).cloned() else {
-            continue;
-        };
-        if live.cancel.is_cancelled() {
-            // A user's cancel (a shutdown's leaves the job queued for the restart).
-            if live.user_cancelled.load(Ordering::SeqCst) {
-                finish_cancelled_in_queue(inner, &live);
-            }
-            continue;
-        }
-        // `running`, with the attempt counted, is committed before the render starts: a
-        // job that takes the server down is then known at the next start-up and stopped
-        // after `store::MAX_ATTEMPTS` (a poison job). The commit costs one sync
-        // (0.6-4 ms on the test machine) before the first frame.
-        let started = store::now_rfc3339();
-        match inner.rt.block_on(inner.store.mark_running_at(id, &started)) {
-            Ok(true) => inner.wrote("starting a job"),
-            Ok(false) => {
-                // Left `queued` meanwhile (a cancel won the race and recorded it).
-                lock(&inner.live).remove(&id);
-                live.settled.send_replace(true);
-                continue;
-            }
-            Err(e) => {
-                // The disk is full or unwritable: the job stays queued, in the store and
-                // in the queue, and is tried again after a pause.
-                inner.write_failed("starting a job", &e);
-                std::thread::sleep(WRITE_RETRY);
-                inner.queue.push_force(id);
-                continue;
-            }
-        }
-        let mut job = live.snapshot().job.clone();
-        job.state = JobState::Running;
-        job.started_at = Some(started);
-        job.attempt += 1;
-        live.publish(job.clone(), None);
-        tracing::info!(%id, state = "running", "job started");
-        inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
-        run_job(inner, &live, job);
-        inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
-        lock(&inner.live).remove(&id);
-        live.settled.send_replace(true);
-        drop(live);
-        super::trim::after_job(&inner.rt);
+/// Idle workers look for jobs submitted on other nodes this often (their own node wakes
+/// them at once). On the embedded store only this node submits, so the poll is a
+/// safety net for a lease the reaper freed.
+fn idle_poll(store: &Store) -> std::time::Duration {
+    if store.is_shared() {
+        std::time::Duration::from_millis(250)
+    } else {
+        std::time::Duration::from_secs(1)
     }
 }
 
-/// A job whose cancel was acknowledged while it waited: its record says `cancelled`
-/// before it leaves the live jobs (the cancel's own write may have failed on a full
-/// disk, which would otherwise leave it `queued` in the store and in no queue).
-fn finish_cancelled_in_queue(inner: &Arc<Inner>, live: &Arc<LiveJob>) {
-    let id = live.id;
-    let mut cancelled = false;
-    let stored = inner.write_until_done("cancelling a queued job", || {
-        inner
-            .rt
-            .block_on(inner.store.cancel_queued(id))
-            .map(|c| cancelled = c)
-    });
-    if stored && cancelled {
-        tracing::info!(%id, state = "cancelled", ms = 0u64, "job finished (cancelled while queued)");
-        if let Ok(Some(rec)) = inner.rt.block_on(inner.store.get(id)) {
-            live.publish(rec, None);
+fn worker_loop(inner: &Arc<Inner>) {
+    while !inner.shutting_down.load(Ordering::SeqCst) {
+        let seen = *lock(&inner.work.0);
+        let name = inner.node.name.as_deref();
+        match inner.rt.block_on(inner.store.claim(name, inner.node.lease)) {
+            Ok(Some(claim)) => {
+                inner.wrote("claiming a job");
+                inner.metrics.claims.fetch_add(1, Ordering::Relaxed);
+                run_claim(inner, &claim);
+            }
+            Ok(None) => {
+                inner.wrote("claiming a job");
+                wait_for_work(inner, seen, idle_poll(&inner.store));
+            }
+            Err(e) => {
+                // The disk is full or the database is away: the job stays queued for
+                // this or another worker, and the claim is tried again after a pause.
+                // A shared database that does not answer is what `/healthz`'s ping
+                // reports; the store's fault is this node's own disk.
+                if inner.store.is_shared() {
+                    tracing::warn!("claiming a job: {e}");
+                } else {
+                    inner.write_failed("claiming a job", &e);
+                }
+                wait_for_work(inner, seen, WRITE_RETRY);
+            }
         }
     }
+}
+
+/// Sleeps until this node has news for its workers (`seen` is the count read before the
+/// claim that found nothing, so a submission in between is not missed) or `at_most`.
+fn wait_for_work(inner: &Inner, seen: u64, at_most: std::time::Duration) {
+    let (count, news) = &inner.work;
+    let guard = lock(count);
+    if *guard == seen && !inner.shutting_down.load(Ordering::SeqCst) {
+        drop(news.wait_timeout(guard, at_most));
+    }
+}
+
+/// Runs a claimed job under its lease: a [`LiveJob`] while it renders, heartbeats beside
+/// it ([`lease::keep`]), and every write naming the claim's token.
+fn run_claim(inner: &Arc<Inner>, claim: &store::Claim) {
+    let id = claim.id;
+    let job = match inner.rt.block_on(inner.store.get(id)) {
+        Ok(Some(j)) => j,
+        Ok(None) => return,
+        Err(e) => {
+            tracing::error!(%id, "cannot read a claimed job: {e}; released");
+            let _ = inner.rt.block_on(inner.store.release(id, claim.token));
+            return;
+        }
+    };
+    let live = LiveJob::new(job.clone());
+    lock(&inner.live).insert(id, Arc::clone(&live));
+    if inner.shutting_down.load(Ordering::SeqCst) {
+        // Claimed while the node began to stop (after its renders were cancelled): the
+        // render stops at once and the job is released.
+        live.cancel.cancel();
+    }
+    inner.claimed.send_modify(|n| *n += 1);
+    tracing::info!(%id, attempt = claim.attempt, state = "running", "job started");
+    inner.metrics.jobs_running.fetch_add(1, Ordering::Relaxed);
+    let keeper = inner.rt.spawn(lease::keep(
+        Arc::clone(inner),
+        Arc::clone(&live),
+        claim.token,
+    ));
+    run_job(inner, &live, job, claim.token);
+    keeper.abort();
+    inner.metrics.jobs_running.fetch_sub(1, Ordering::Relaxed);
     lock(&inner.live).remove(&id);
     live.settled.send_replace(true);
+    drop(live);
+    super::trim::after_job(&inner.rt);
 }
 
 enum Outcome {
@@ -1031,10 +1139,10 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
+fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: LeaseToken) {
     let id = live.id;
     let start = Instant::now();
-    let parsed = lock(&live.parsed).take();
+    let parsed = inner.take_parsed(id);
     let scene_json = match parsed {
         Some(_) => String::new(),
         None => match inner.rt.block_on(inner.store.scene(id)) {
@@ -1150,7 +1258,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
             let progress = progress_of(&f, elapsed, Eta::Done);
             let lf = match latest.take() {
                 // The callback already saw this final frame: reuse it (and its PNG).
-                Some(l) if l.frame.iteration == f.iteration && l.frame.last => l,
+                Some(l) if l.iteration == f.iteration && l.is_last() => l,
                 _ => Arc::new(LiveFrame::new(
                     *f,
                     exposure,
@@ -1159,6 +1267,11 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
                 )),
             };
             (JobState::Succeeded, stats, None, Some(lf))
+        }
+        Outcome::Cancelled if live.lease_lost.load(Ordering::SeqCst) => {
+            // Presumed dead: the job is another worker's now. Nothing more is written.
+            tracing::warn!(%id, "render stopped: its lease was lost");
+            return;
         }
         Outcome::Cancelled
             if timed_out.load(Ordering::SeqCst) && !live.user_cancelled.load(Ordering::SeqCst) =>
@@ -1173,10 +1286,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
         Outcome::Cancelled => {
             if !live.user_cancelled.load(Ordering::SeqCst) {
                 // Shutdown, not a user: back to `queued`, to run again from the start.
-                if let Err(e) = inner.rt.block_on(inner.store.requeue(id)) {
-                    tracing::error!(%id, "cannot requeue job: {e}");
+                if let Err(e) = inner.rt.block_on(inner.store.release(id, token)) {
+                    tracing::error!(%id, "cannot release job: {e}");
                 }
-                tracing::info!(%id, state = "queued", "job requeued (shutdown)");
+                tracing::info!(%id, state = "queued", "job released (shutdown)");
                 return;
             }
             (JobState::Cancelled, None, None, latest.take())
@@ -1192,7 +1305,12 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     // A full or unwritable disk does not end the job in a state that lies: the image and
     // then the record are tried again until they are stored (the job stays `running`,
     // live, meanwhile), or the server stops and the restart runs the job again.
+    // On a shared database the lease is renewed first: a worker presumed dead must not
+    // touch the files of a job another worker now owns (`lease::fence`).
     let png = final_frame.as_ref().map(|lf| lf.image_png_blocking());
+    if !lease::fence(inner, live, token) {
+        return;
+    }
     let has_frame = match &png {
         Some(Ok(png)) => {
             if !inner.write_until_done("storing a final image", || {
@@ -1219,8 +1337,9 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     if !inner.write_until_done("recording the end of a job", || {
         inner
             .rt
-            .block_on(inner.store.finish(
+            .block_on(inner.store.finish_leased(
                 id,
+                token,
                 state,
                 progress.as_ref(),
                 stats.as_ref(),
@@ -1231,7 +1350,14 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord) {
     }) {
         return;
     }
-    job.finished_at = finished;
+    let Some(finished) = finished.flatten() else {
+        // Refused: the lease went to another worker between the fence and now.
+        inner.metrics.lease_losses.fetch_add(1, Ordering::Relaxed);
+        tracing::warn!(%id, "the end of the job was refused: its lease was lost");
+        return;
+    };
+    relay::remove_frames(&job_dir);
+    job.finished_at = Some(finished);
     tracing::info!(
         %id,
         state = state.as_str(),
@@ -1297,22 +1423,6 @@ mod tests {
         Frame::fixture(iteration, d, last)
     }
 
-    #[test]
-    fn queue_refuses_beyond_capacity_and_frees_on_pop() {
-        let q = Queue::new(2);
-        assert!(q.try_reserve());
-        q.push_reserved(Uuid::nil());
-        assert!(q.try_reserve());
-        assert!(!q.try_reserve(), "one pushed + one reserved = full");
-        q.release();
-        assert!(q.try_reserve());
-        q.push_reserved(Uuid::max());
-        assert_eq!(q.pop(), Some(Uuid::nil()));
-        assert!(q.try_reserve());
-        q.close();
-        assert_eq!(q.pop(), None);
-    }
-
     const TINY: &str = r#"{"version": 1, "image": {"width": 4, "height": 3},
         "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_y": 40},
         "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
@@ -1363,8 +1473,8 @@ mod tests {
         let store = Store::open(dir).await.unwrap();
         let jobs = Jobs::start_with(
             store,
+            Node::single(1),
             crate::service::server_limits(),
-            1,
             4,
             DEFAULT_JOB_TIMEOUT,
             Arc::clone(&metrics),
@@ -1378,11 +1488,15 @@ mod tests {
     /// Waits until the worker is done with the job, secondary files included.
     async fn settled(jobs: &Jobs, id: Uuid) -> JobRecord {
         let deadline = Instant::now() + std::time::Duration::from_secs(10);
-        while jobs.live(id).is_some() {
+        loop {
+            // Finished and no longer live: claimed, rendered, its files written.
+            let j = jobs.get(id).await.unwrap().unwrap();
+            if j.state.is_finished() && jobs.live(id).is_none() {
+                return j;
+            }
             assert!(Instant::now() < deadline, "job never settled");
             tokio::time::sleep(std::time::Duration::from_millis(2)).await;
         }
-        jobs.get(id).await.unwrap().unwrap()
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1520,8 +1634,8 @@ mod tests {
         let store = Store::open(dir.path()).await.unwrap();
         let jobs = Jobs::start_with(
             store,
+            Node::single(1),
             crate::service::server_limits(),
-            1,
             4,
             DEFAULT_JOB_TIMEOUT,
             Arc::new(Metrics::default()),

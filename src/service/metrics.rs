@@ -21,6 +21,14 @@ pub struct Metrics {
     /// encoded only when a watcher (or the final file) takes it, so with nobody watching
     /// this grows by one per job, not by one per frame.
     pub frames_encoded: AtomicU64,
+    /// Jobs this node's workers claimed (cluster.md: per node).
+    pub claims: AtomicU64,
+    /// Leases this node's workers lost (presumed dead, the job went elsewhere).
+    pub lease_losses: AtomicU64,
+    /// Heartbeats that came more than two periods after the previous one held.
+    pub heartbeats_late: AtomicU64,
+    /// Jobs whose expired lease this node's reaper ended or queued again.
+    pub jobs_reaped: AtomicU64,
 }
 
 impl Metrics {
@@ -58,12 +66,27 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
         let n = counts.iter().find(|(s, _)| *s == st).map_or(0, |(_, n)| *n);
         let _ = writeln!(out, "glimpse_jobs{{state=\"{}\"}} {n}", st.as_str());
     }
-    let lines: [(&str, &str, &str, String); 7] = [
+    if let Some(name) = jobs.node_name() {
+        // Which node answered, for scrapers of many nodes (the name is ours or an
+        // operator's `--name`; quotes and backslashes escaped as the format asks).
+        let name = name
+            .replace('\\', "\\\\")
+            .replace('"', "\\\"")
+            .replace('\n', "\\n");
+        let _ = writeln!(
+            out,
+            "# HELP glimpse_node This node's name in the jobs it claims."
+        );
+        let _ = writeln!(out, "# TYPE glimpse_node gauge");
+        let _ = writeln!(out, "glimpse_node{{name=\"{name}\"}} 1");
+    }
+    let depth = jobs.queue_depth().await.unwrap_or_default();
+    let lines: [(&str, &str, &str, String); 11] = [
         (
             "glimpse_queue_depth",
             "gauge",
-            "Jobs waiting for a worker.",
-            jobs.queue_depth().to_string(),
+            "Jobs waiting for a worker (all nodes).",
+            depth.to_string(),
         ),
         (
             "glimpse_jobs_submitted_total",
@@ -103,6 +126,30 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
             "counter",
             "Frame images encoded as PNG (for watchers or the final file).",
             m.frames_encoded.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_claims_total",
+            "counter",
+            "Jobs this node's workers claimed.",
+            m.claims.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_lease_losses_total",
+            "counter",
+            "Leases this node's workers lost (presumed dead; the job went to another worker).",
+            m.lease_losses.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_heartbeats_late_total",
+            "counter",
+            "Heartbeats that held more than two periods after the previous one.",
+            m.heartbeats_late.load(Ordering::Relaxed).to_string(),
+        ),
+        (
+            "glimpse_jobs_reaped_total",
+            "counter",
+            "Jobs with an expired lease that this node's reaper queued again or ended.",
+            m.jobs_reaped.load(Ordering::Relaxed).to_string(),
         ),
     ];
     for (name, kind, help, value) in lines {

@@ -4,7 +4,8 @@
 //! Layout:
 //! - [`http`]: router, limit layers, extractors, `ApiError` (the only type that knows
 //!   status codes);
-//! - [`jobs`]: bounded queue, worker threads, cancellation, state transitions, ETA;
+//! - [`jobs`]: workers claiming jobs from the store under leases, the reaper,
+//!   cancellation from any node, state transitions, live and relayed frames;
 //! - [`store`]: job records on SQLite or PostgreSQL (sqlx), claims and leases, and the
 //!   final images beside them; [`error_code`]: the stable error codes;
 //! - [`ws`]: the stream protocol over a `watch` channel per job;
@@ -40,8 +41,14 @@ pub struct Config {
     /// `--database`: SQLite in `data_dir` when absent.
     pub database: Option<store::Database>,
     /// Concurrent renders (each render already uses every core through rayon, so more
-    /// than one or two workers only helps many small jobs).
+    /// than one or two workers only helps many small jobs); 0 on a shared database makes
+    /// a node that only serves.
     pub workers: usize,
+    /// This node's name in the jobs its workers claim on a shared database (`--name`;
+    /// [`default_node_name`]).
+    pub node_name: Option<String>,
+    /// The lease of a claimed job ([`jobs::DEFAULT_LEASE`]; `--lease`).
+    pub lease: Duration,
     /// If set, every `/v1` call needs `Authorization: Bearer <token>`.
     pub token: Option<String>,
     /// Jobs waiting for a worker before submissions get `429 queue_full`: bounds memory
@@ -80,6 +87,8 @@ impl Config {
             data_dir: data_dir.into(),
             database: None,
             workers: 1,
+            node_name: None,
+            lease: jobs::DEFAULT_LEASE,
             token: None,
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
             max_body_bytes: DEFAULT_MAX_BODY_BYTES,
@@ -143,8 +152,8 @@ pub fn server_limits() -> Limits {
 /// Serves on `listener` until `shutdown` resolves.
 ///
 /// Shutdown order: stop accepting connections and close open streams; cancel running
-/// renders and put their jobs back to `queued` in the store (they run again after a
-/// restart); join the workers; close the database; return.
+/// renders and release their jobs to `queued` in the store (they run again after a
+/// restart, or on another node); join the workers; close the database; return.
 pub async fn run(
     listener: tokio::net::TcpListener,
     config: Config,
@@ -162,11 +171,14 @@ pub async fn run(
     let store = store::Store::connect(&database, &files_dir)
         .await
         .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
+    if config.workers == 0 && !store.is_shared() {
+        anyhow::bail!("--workers 0 needs a shared database (--database postgres://…): on the embedded store nobody else would render the jobs");
+    }
     let metrics = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,
+        node(&config, config.workers),
         config.limits,
-        config.workers,
         config.queue_capacity,
         config.job_timeout,
         Arc::clone(&metrics),
@@ -196,9 +208,11 @@ pub async fn run(
     ));
     let app = http::router(state);
     let stop2 = stop.clone();
+    let jobs2 = jobs.clone();
     tokio::spawn(async move {
         shutdown.await;
         stop2.cancel();
+        jobs2.stop_rendering();
     });
     serve(
         listener,
@@ -210,6 +224,62 @@ pub async fn run(
     .await;
     // Never leave workers rendering behind us.
     stop.cancel();
+    jobs.shutdown().await;
+    Ok(())
+}
+
+/// This node as the job machinery sees it: on a shared database it is named (`--name`,
+/// else [`default_node_name`]); on the embedded store it is the only node and unnamed.
+fn node(config: &Config, workers: usize) -> jobs::Node {
+    let shared = matches!(config.database, Some(store::Database::Postgres(_)));
+    jobs::Node {
+        name: shared.then(|| config.node_name.clone().unwrap_or_else(default_node_name)),
+        workers,
+        lease: config.lease,
+    }
+}
+
+/// `HOST-PID`: unique among the processes of a farm, and says where to look.
+#[must_use]
+pub fn default_node_name() -> String {
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_owned())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "node".to_owned());
+    format!("{host}-{}", std::process::id())
+}
+
+/// A worker node (`glimpse worker`, cluster.md): renders jobs claimed from the shared
+/// database, one at a time, until `shutdown` resolves; then releases its job (to
+/// `queued`, for another worker) and returns. It serves no HTTP.
+pub async fn run_worker(
+    config: Config,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    let Some(database @ store::Database::Postgres(_)) = config.database.clone() else {
+        anyhow::bail!("glimpse worker needs a shared database: --database postgres://USER@HOST/DB (the embedded SQLite store has one node, `glimpse serve`, which renders its own jobs)");
+    };
+    let store = store::Store::connect(&database, &config.data_dir)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
+    let jobs = jobs::Jobs::start(
+        store,
+        node(&config, 1),
+        config.limits,
+        config.queue_capacity,
+        config.job_timeout,
+        Arc::new(metrics::Metrics::default()),
+    )
+    .await
+    .map_err(|e| anyhow::anyhow!("cannot start the worker: {e}"))?;
+    tracing::info!(
+        name = jobs.node_name().unwrap_or_default(),
+        "worker started on {}",
+        database.display()
+    );
+    shutdown.await;
     jobs.shutdown().await;
     Ok(())
 }

@@ -207,7 +207,7 @@ async fn send_binary(tx: &mut Tx, data: Bytes) -> Result<(), StreamError> {
 /// takes them, not the frame (whose buffers are ~240 bytes a pixel).
 async fn send_frame(tx: &mut Tx, lf: Arc<LiveFrame>) -> Result<(), StreamError> {
     let png = lf.image_png().await.map_err(StreamError::Other)?;
-    let header = json!({"type": "frame", "iteration": lf.frame.iteration, "preview": lf.frame.preview, "progress": lf.progress, "layers": lf.layers});
+    let header = json!({"type": "frame", "iteration": lf.iteration, "preview": lf.preview, "progress": lf.progress, "layers": lf.layers});
     drop(lf);
     send_json(tx, &header).await?;
     send_binary(tx, png).await

@@ -66,8 +66,15 @@ pub async fn spawn(
             test_database(data)
                 .await
                 .map(|db| match db {
+                    // A short lease: a job whose server was killed is claimed again
+                    // after it expires (the embedded store recovers at start-up).
                     glimpse::service::store::Database::Postgres(url) => {
-                        vec!["--database".to_owned(), url]
+                        vec![
+                            "--database".to_owned(),
+                            url,
+                            "--lease".to_owned(),
+                            "2".to_owned(),
+                        ]
                     }
                     glimpse::service::store::Database::Sqlite(_) => Vec::new(),
                 })

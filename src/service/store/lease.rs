@@ -62,11 +62,16 @@ impl Store {
     }
 
     /// Claims the oldest queued job for `worker` under a lease of `lease`; `None` if no
-    /// job is waiting. One statement: on PostgreSQL the row is picked `FOR UPDATE SKIP
+    /// job is waiting. `worker` is `None` on the embedded store's one node (the job
+    /// object's `worker` stays null there). One statement: on PostgreSQL the row is picked `FOR UPDATE SKIP
     /// LOCKED` (two workers never wait on nor take the same job); SQLite has one writer
     /// and the statement runs in a `BEGIN IMMEDIATE` transaction, which takes the write
     /// lock before the job is read.
-    pub async fn claim(&self, worker: &str, lease: Duration) -> Result<Option<Claim>, StoreError> {
+    pub async fn claim(
+        &self,
+        worker: Option<&str>,
+        lease: Duration,
+    ) -> Result<Option<Claim>, StoreError> {
         let started = now_rfc3339();
         let token = LeaseToken(Uuid::now_v7());
         let set = format!(

@@ -173,6 +173,13 @@ impl Store {
         }
     }
 
+    /// True on PostgreSQL: other nodes may share this database (cluster.md), so what a
+    /// worker renders must reach them through it, and a lease may be lost to another node.
+    #[must_use]
+    pub fn is_shared(&self) -> bool {
+        matches!(self.pool, Pool::Postgres(_))
+    }
+
     /// One round trip to the database: does this node reach it?
     pub async fn ping(&self) -> Result<(), StoreError> {
         on_pool!(self, p => sqlx::query("SELECT 1").execute(p).await.map(|r| r.rows_affected()))?;
