@@ -31,7 +31,7 @@ use crate::tracer::PathTracer;
 use bytes::Bytes;
 use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 
 mod lease;
@@ -406,7 +406,11 @@ struct Inner {
     queue_capacity: usize,
     /// Submissions on this node between their capacity check and their insert, so that
     /// concurrent ones cannot all pass the check.
-    reserved: tokio::sync::Mutex<usize>,
+    reserved: AtomicUsize,
+    /// Makes [`Jobs::reserve`]'s count-then-take one step per node. Only the taking is
+    /// under it: a reservation is given back at once after the insert, so a committed
+    /// job is not counted twice (queued and reserved) while others wait for the count.
+    reserving: tokio::sync::Mutex<()>,
     /// The jobs this node's workers run.
     live: Mutex<HashMap<Uuid, Arc<LiveJob>>>,
     /// The jobs this node follows for its watchers without running them ([`relay`]).
@@ -562,7 +566,8 @@ impl Jobs {
             render,
             limits,
             queue_capacity: queue_capacity.max(1),
-            reserved: tokio::sync::Mutex::new(0),
+            reserved: AtomicUsize::new(0),
+            reserving: tokio::sync::Mutex::new(()),
             live: Mutex::new(HashMap::new()),
             relays: Mutex::new(HashMap::new()),
             work: (Mutex::new(0), Condvar::new()),
@@ -836,7 +841,7 @@ impl Jobs {
             *lock(&inner.parsed) = Some((id, scene));
         }
         let inserted = inner.store.insert(id, name, scene_json).await;
-        *inner.reserved.lock().await -= 1;
+        inner.reserved.fetch_sub(1, Ordering::SeqCst);
         let rec = match inserted {
             Ok(r) => {
                 inner.wrote("storing a new job");
@@ -860,13 +865,14 @@ impl Jobs {
     /// each let one submission past a full queue at the same moment; no more.
     async fn reserve(&self) -> Result<(), SubmitError> {
         let inner = &self.inner;
-        let mut reserved = inner.reserved.lock().await;
+        let _turn = inner.reserving.lock().await;
         let queued = inner.store.queued_count().await?;
         let queued = usize::try_from(queued).unwrap_or(usize::MAX);
-        if queued.saturating_add(*reserved) >= inner.queue_capacity {
+        let reserved = inner.reserved.load(Ordering::SeqCst);
+        if queued.saturating_add(reserved) >= inner.queue_capacity {
             return Err(SubmitError::QueueFull(queued));
         }
-        *reserved += 1;
+        inner.reserved.fetch_add(1, Ordering::SeqCst);
         Ok(())
     }
 

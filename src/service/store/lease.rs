@@ -9,6 +9,7 @@
 //! statement of [`Store::reap`] is conditional on the expiry, so running it twice, or
 //! on two nodes at once, changes nothing more.
 
+use super::fault;
 use super::record::column_text;
 use super::{now_rfc3339, JobError, JobState, Pool, Progress, Store, StoreError};
 use crate::progressive::RenderStats;
@@ -72,6 +73,7 @@ impl Store {
         worker: Option<&str>,
         lease: Duration,
     ) -> Result<Option<Claim>, StoreError> {
+        fault::check(fault::Write::Start)?;
         let started = now_rfc3339();
         let token = LeaseToken(Uuid::now_v7());
         let set = format!(
@@ -166,6 +168,7 @@ impl Store {
         error: Option<&JobError>,
         has_frame: bool,
     ) -> Result<Option<String>, StoreError> {
+        fault::check(fault::Write::Finish)?;
         let finished = now_rfc3339();
         let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6, lease_token = NULL, lease_expires_at = NULL \
                  WHERE id = $7 AND lease_token = $8 AND state = 'running'";
@@ -187,6 +190,7 @@ impl Store {
     /// running → queued by the worker holding the lease (it is shutting down): the
     /// interrupted attempt does not count. False if the lease was already lost.
     pub async fn release(&self, id: Uuid, token: LeaseToken) -> Result<bool, StoreError> {
+        fault::check(fault::Write::Requeue)?;
         let q = "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL, lease_token = NULL, lease_expires_at = NULL, \
                  attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END \
                  WHERE id = $1 AND lease_token = $2 AND state = 'running'";

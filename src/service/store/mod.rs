@@ -317,42 +317,6 @@ impl Store {
         Ok(r == 1)
     }
 
-    /// running → a finished state, with what the render left.
-    pub async fn finish(
-        &self,
-        id: Uuid,
-        state: JobState,
-        progress: Option<&Progress>,
-        stats: Option<&crate::progressive::RenderStats>,
-        error: Option<&JobError>,
-        has_frame: bool,
-    ) -> Result<String, StoreError> {
-        fault::check(fault::Write::Finish)?;
-        let finished = now_rfc3339();
-        let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6 WHERE id = $7";
-        on_pool!(self, p => sqlx::query(q)
-            .bind(state.as_str())
-            .bind(&finished)
-            .bind(column_text(progress))
-            .bind(column_text(stats))
-            .bind(column_text(error))
-            .bind(i64::from(has_frame))
-            .bind(id.to_string())
-            .execute(p)
-            .await
-            .map(|r| r.rows_affected()))?;
-        Ok(finished)
-    }
-
-    /// running → queued (graceful shutdown: the job runs again from the start next time;
-    /// the interrupted attempt does not count against it).
-    pub async fn requeue(&self, id: Uuid) -> Result<(), StoreError> {
-        fault::check(fault::Write::Requeue)?;
-        let q = "UPDATE jobs SET state = 'queued', started_at = NULL, progress = NULL, attempts = CASE WHEN attempts > 0 THEN attempts - 1 ELSE 0 END WHERE id = $1 AND state = 'running'";
-        on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
-        Ok(())
-    }
-
     /// Start-up recovery. A job found `running` was interrupted by a crash: if a cancel
     /// was acknowledged for it, it ends `cancelled`; if this was its [`MAX_ATTEMPTS`]th
     /// start, it ends `failed` (a poison job: each run took the server down); otherwise
