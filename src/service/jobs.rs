@@ -1069,13 +1069,9 @@ fn worker_loop(inner: &Arc<Inner>) {
             Err(e) => {
                 // The disk is full or the database is away: the job stays queued for
                 // this or another worker, and the claim is tried again after a pause.
-                // A shared database that does not answer is what `/healthz`'s ping
-                // reports; the store's fault is this node's own disk.
-                if inner.store.is_shared() {
-                    tracing::warn!("claiming a job: {e}");
-                } else {
-                    inner.write_failed("claiming a job", &e);
-                }
+                // `/healthz` says which (a database that does not answer its ping
+                // first); the next claim that works clears the fault.
+                inner.write_failed("claiming a job", &e);
                 wait_for_work(inner, seen, WRITE_RETRY);
             }
         }
