@@ -187,7 +187,13 @@ async fn one_write_fails(s: &Srv, write: Write) {
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    assert!(reported, "{w}: /healthz never reported the fault");
+    // On PostgreSQL a failing claim is not this node's store fault: the shared
+    // database's health is what `/healthz`'s ping reports.
+    let shared = std::env::var("GLIMPSE_TEST_BACKEND").as_deref() == Ok("postgres");
+    assert!(
+        reported || (shared && write == Write::Start),
+        "{w}: /healthz never reported the fault"
+    );
     match write {
         Write::Start => {
             if let Some(new) = &new {

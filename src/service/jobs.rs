@@ -1069,9 +1069,14 @@ fn worker_loop(inner: &Arc<Inner>) {
             Err(e) => {
                 // The disk is full or the database is away: the job stays queued for
                 // this or another worker, and the claim is tried again after a pause.
-                // `/healthz` says which (a database that does not answer its ping
-                // first); the next claim that works clears the fault.
-                inner.write_failed("claiming a job", &e);
+                // A shared database's health is what `/healthz`'s ping reports (a claim
+                // failing there is no fault of this node's store); on SQLite the store
+                // is this node's own disk.
+                if inner.store.is_shared() {
+                    tracing::warn!("claiming a job: {e}");
+                } else {
+                    inner.write_failed("claiming a job", &e);
+                }
                 wait_for_work(inner, seen, WRITE_RETRY);
             }
         }
