@@ -658,15 +658,7 @@ impl Jobs {
                 return Ok(FrameLookup::NoFrame);
             };
             drop(live);
-            let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, exr))
-                .await
-                .map_err(|e| e.to_string())
-                .and_then(|r| r);
-            return Ok(match encoded {
-                Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
-                Ok(None) => FrameLookup::NoLayer,
-                Err(e) => FrameLookup::EncodingFailed(e),
-            });
+            return Ok(encoded_lookup(lf, layer, exr).await);
         }
         let Some(job) = self.inner.store.get(id).await? else {
             return Ok(FrameLookup::NotFound);
@@ -708,15 +700,7 @@ impl Jobs {
         // The live frame itself (not "the latest" looked up again, which may have moved on).
         let live_frame = live.as_ref().and_then(|l| l.snapshot().frame.clone());
         if let Some(lf) = live_frame.filter(|f| f.iteration == iteration) {
-            let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, false))
-                .await
-                .map_err(|e| e.to_string())
-                .and_then(|r| r);
-            return Ok(match encoded {
-                Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
-                Ok(None) => FrameLookup::NoLayer,
-                Err(e) => FrameLookup::EncodingFailed(e),
-            });
+            return Ok(encoded_lookup(lf, layer, false).await);
         }
         let path = store::iteration_path(&self.inner.store.job_dir(id), iteration, layer);
         if tokio::fs::try_exists(&path).await? {
@@ -1044,6 +1028,20 @@ impl Jobs {
 /// Idle workers look for jobs submitted on other nodes this often (their own node wakes
 /// them at once). On the embedded store only this node submits, so the poll is a
 /// safety net for a lease the reaper freed.
+/// One layer of a frame held in memory, encoded (once, off the async runtime) and
+/// answered as a lookup.
+async fn encoded_lookup(lf: Arc<LiveFrame>, layer: Layer, exr: bool) -> FrameLookup {
+    let encoded = tokio::task::spawn_blocking(move || lf.encoded_blocking(layer, exr))
+        .await
+        .map_err(|e| e.to_string())
+        .and_then(|r| r);
+    match encoded {
+        Ok(Some(bytes)) => FrameLookup::Found(FrameBytes::Memory(bytes)),
+        Ok(None) => FrameLookup::NoLayer,
+        Err(e) => FrameLookup::EncodingFailed(e),
+    }
+}
+
 fn idle_poll(store: &Store) -> std::time::Duration {
     if store.is_shared() {
         std::time::Duration::from_millis(250)
