@@ -44,8 +44,9 @@ pub struct RenderStats {
     /// Object-id map and first sample set (§4.1), ms; not part of trace_ms.
     #[serde(default)]
     pub analysis_ms: f64,
-    /// Why the loop ended: "all_final", "all_traced", "max_iterations", "max_pixels",
-    /// "max_time", "no_triangles" (1-pixel-wide images are traced fully).
+    /// Why the loop ended: "all_final", "traced_rest" (the open triangles were traced
+    /// whole, cheaper than another iteration), "all_traced", "max_iterations",
+    /// "max_pixels", "max_time", "no_triangles" (1-pixel-wide images are traced fully).
     #[serde(default)]
     pub stop_reason: Option<String>,
     /// Noise twins traced after frame 0 (noise-aware extension of F&P04, see

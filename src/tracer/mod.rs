@@ -88,6 +88,14 @@ pub trait PixelOracle: Sync {
     fn has_textures(&self) -> bool {
         false
     }
+    /// Whether the pixel's footprint (the box its estimate integrates) spans more than one
+    /// object: the camera rays through its centre and its four [`ALBEDO_TAPS`] do not all
+    /// see the same object. Such a pixel's value is a blend that no object's vertices can
+    /// interpolate (an antialiased silhouette, a horizon, a wire thinner than a pixel). An
+    /// oracle that cannot tell answers `false`.
+    fn footprint_mixed(&self, _p: PixelCoord) -> bool {
+        false
+    }
 }
 
 /// One pixel's estimate (a mean of paths) and how far to trust it.
@@ -227,6 +235,12 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     let (w, h) = oracle.size();
     let data = every_pixel(oracle, |p| oracle.object_id(p));
     Image::from_vec(w, h, data).expect("size matches by construction")
+}
+
+/// [`PixelOracle::footprint_mixed`] at every pixel, row-major.
+#[must_use]
+pub fn mixed_map(oracle: &impl PixelOracle) -> Vec<bool> {
+    every_pixel(oracle, |p| oracle.footprint_mixed(p))
 }
 
 /// [`PixelOracle::surface_normal`] at every pixel, row-major.
@@ -572,6 +586,14 @@ impl PathTracer {
         }
     }
 
+    /// The object the camera ray through `jitter` of pixel `p` hits.
+    fn object_at(&self, p: PixelCoord, jitter: glam::Vec2) -> ObjectId {
+        let d = self.camera.direction(p.x, p.y, jitter);
+        self.camera_hit(p.x, p.y, d)
+            .and_then(|h| self.geo.info.get(h.prim as usize))
+            .map_or(BACKGROUND_ID, |i| i.object)
+    }
+
     /// The albedo of the textured Lambertian surface the camera ray through `jitter` of
     /// pixel `p` hits; `None` for any other material or a miss.
     fn albedo_at(&self, p: PixelCoord, jitter: glam::Vec2) -> Option<Vec3> {
@@ -649,10 +671,12 @@ impl PixelOracle for PathTracer {
     }
 
     fn object_id(&self, p: PixelCoord) -> ObjectId {
-        let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
-        self.camera_hit(p.x, p.y, d)
-            .and_then(|h| self.geo.info.get(h.prim as usize))
-            .map_or(BACKGROUND_ID, |i| i.object)
+        self.object_at(p, glam::Vec2::splat(0.5))
+    }
+
+    fn footprint_mixed(&self, p: PixelCoord) -> bool {
+        let centre = self.object_id(p);
+        ALBEDO_TAPS.iter().any(|&t| self.object_at(p, t) != centre)
     }
 
     fn surface_normal(&self, p: PixelCoord) -> Vec3 {
@@ -717,6 +741,31 @@ mod tests {
             }],
             (2, 1, 5),
         )
+    }
+
+    #[test]
+    fn a_footprint_is_mixed_exactly_where_its_taps_see_two_objects() {
+        let t = PathTracer::new(&checker_floor(false));
+        let mixed = mixed_map(&t);
+        let ids = object_id_map(&t);
+        let floor = *ids.get(0, 0);
+        let sphere = ids.pixels().iter().position(|&id| id != floor);
+        let inside = sphere.map(|i| i + 1).expect("the sphere is in view");
+        let mut n = 0;
+        for (i, &m) in mixed.iter().enumerate() {
+            let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
+            let seen: Vec<ObjectId> = ALBEDO_TAPS.iter().map(|&j| t.object_at(p, j)).collect();
+            assert_eq!(m, seen.iter().any(|&id| id != ids.pixels()[i]), "{p:?}");
+            n += usize::from(m);
+        }
+        // The sphere's silhouette: a ring of pixels, none inside it or on the open floor.
+        assert!((8..60).contains(&n), "{n} mixed pixels");
+        let row = 32 * (inside / 32 + 2);
+        let centre = (row..row + 32).find(|&i| ids.pixels()[i] != floor && !mixed[i]);
+        assert!(
+            centre.is_some() && !mixed[5 * 32 + 5],
+            "inside the sphere, on the floor"
+        );
     }
 
     #[test]

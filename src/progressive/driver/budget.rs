@@ -11,6 +11,9 @@ pub enum Stop {
     AllTraced,
     /// No triangle asks for another sample.
     AllFinal,
+    /// The triangles still open were traced whole, which cost less than another
+    /// iteration (`Plan::finish_if_cheaper`).
+    TracedRest,
     MaxPixels,
     MaxTime,
     MaxIterations,
@@ -24,6 +27,7 @@ impl Stop {
         match self {
             Stop::AllTraced => "all_traced",
             Stop::AllFinal => "all_final",
+            Stop::TracedRest => "traced_rest",
             Stop::MaxPixels => "max_pixels",
             Stop::MaxTime => "max_time",
             Stop::MaxIterations => "max_iterations",

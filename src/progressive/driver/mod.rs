@@ -12,7 +12,10 @@
 //!    triangles along their rupture ([`fill`]).
 //!
 //! Each pixel is traced at most once ([`samples::SampleSet`]); the triangulation is
-//! incremental and its vertices are exactly the traced pixels.
+//! incremental and its vertices are the traced pixels, except those whose footprint spans
+//! several objects ([`Run::first_trace`]). When tracing every pixel of the triangles still
+//! open costs less than another iteration, the loop does that and ends
+//! ([`Plan::finish_if_cheaper`]).
 
 mod budget;
 mod classifier;
@@ -123,7 +126,7 @@ pub fn run<O: PixelOracle>(
         return r.trace_whole(ids, on_frame, cancel);
     }
     r.analyse_textures();
-    let first = r.trace(&seeds, 0, cancel)?;
+    let first = r.first_trace(&seeds, cancel)?;
     let mut tri = Triangulator::new();
     let t = Instant::now();
     tri.insert(&first);
@@ -136,13 +139,15 @@ pub fn run<O: PixelOracle>(
     let mut prev: Option<LinearImage> = None;
     let mut last_distance: Option<Image<f32>> = None;
     let mut iter = 0u32;
+    // The open triangles were traced whole ([`Plan::finish_if_cheaper`]).
+    let mut finished = false;
     loop {
         if cancel.is_cancelled() {
             return Err(Cancelled);
         }
         // 1. Classify.
-        let mut c = if r.px.all_traced() {
-            // Everything is exact: nothing left to judge.
+        let mut c = if r.px.all_traced() || finished {
+            // Everything is exact, or what was not is now: nothing left to judge.
             let mut c = Classification::uniform(TriangleClass::Final, mesh.tris.len(), true);
             c.distance = last_distance.clone();
             c
@@ -161,16 +166,29 @@ pub fn run<O: PixelOracle>(
         if c.distance.is_some() {
             last_distance = c.distance.clone();
         }
-        // 2. Plan.
-        let plan = Plan::new(
-            &mut r.px,
-            &mesh,
-            &mut c.classes,
-            ids.pixels(),
-            &mut contours,
-        );
+        // 2. Plan: what the classes ask for, or the rest at once when that is cheaper.
+        let mut plan = if finished {
+            Plan::default()
+        } else {
+            Plan::new(
+                &mut r.px,
+                &mesh,
+                &mut c.classes,
+                ids.pixels(),
+                &mut contours,
+            )
+        };
+        let finishing = !finished
+            && !plan.work.is_empty()
+            && plan.finish_if_cheaper(&r.px, &mesh, &c.classes, s.samples_per_pixel);
         // 3. Stop?
-        let stop = r.budget.stop(r.px.all_traced(), plan.work.is_empty(), iter);
+        let stop = r
+            .budget
+            .stop(r.px.all_traced(), plan.work.is_empty(), iter)
+            .map(|stop| match stop {
+                Stop::AllFinal if finished => Stop::TracedRest,
+                stop => stop,
+            });
         // 4. Emit the frame.
         let frame = r.frame(iter, cur, c, &mesh.raster, classifier.t1(), stop, &ids);
         on_frame(&frame);
@@ -198,6 +216,7 @@ pub fn run<O: PixelOracle>(
         r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
         mesh = next_mesh;
         prev = Some(std::mem::replace(&mut cur, next));
+        finished = finishing;
         iter += 1;
     }
 }
@@ -248,12 +267,13 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     }
 
     /// §4.1: the object-id map (one primary ray per pixel) and the surface normals beside
-    /// it, and the first sample set (contour pixels of the id map, then uniform ones), as
-    /// pixel indices.
+    /// it, the pixels whose footprint spans several objects, and the first sample set
+    /// (contour pixels of the id map, then uniform ones), as pixel indices.
     fn analyse(&mut self) -> (Arc<Image<ObjectId>>, Vec<usize>) {
         let t = Instant::now();
         let ids = Arc::new(tracer::object_id_map(self.oracle));
         self.px.normals = tracer::normal_map(self.oracle);
+        self.px.mixed = tracer::mixed_map(self.oracle);
         let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
         let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
         self.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -306,6 +326,42 @@ impl<'a, O: PixelOracle> Run<'a, O> {
                 finals: s.t0 > 0.0,
             }),
         })
+    }
+
+    /// Traces the first sample set and every pixel whose footprint spans several objects;
+    /// returns the first set's pixels, the triangulation's first vertices.
+    ///
+    /// A mixed pixel's value blends the objects its footprint covers (an antialiased
+    /// silhouette, a horizon, a wire thinner than a pixel): no object's vertices can
+    /// interpolate it, and as a vertex it would spread that blend over the interior of
+    /// the object its centre lies on. So it is traced, shown as traced, and kept out of
+    /// the triangulation, except at the image corners, which keep every pixel inside the
+    /// triangulation's hull. Measured on a 40-scene corpus at each scene's declared
+    /// viewing condition: Q ≤ 1 on 21 scenes instead of 19, median Q 0.99 instead of
+    /// 1.03 (keeping mixed pixels as vertices that no other pixel interpolates scored
+    /// 20 and 1.03: the triangles along a contour then shade from one vertex).
+    fn first_trace(
+        &mut self,
+        seeds: &[usize],
+        cancel: &CancelToken,
+    ) -> Result<Vec<PixelCoord>, Cancelled> {
+        let mut list = Vec::with_capacity(seeds.len());
+        for &i in seeds {
+            self.px.push(i, &mut list);
+        }
+        for i in 0..self.px.n {
+            if self.px.mixed[i] {
+                self.px.push(i, &mut list);
+            }
+        }
+        self.px.unqueue(&list);
+        let (w, h) = (self.px.w, self.px.h);
+        let corner = |p: &PixelCoord| (p.x == 0 || p.x == w - 1) && (p.y == 0 || p.y == h - 1);
+        let traced = self.trace(&list, 0, cancel)?;
+        Ok(traced
+            .into_iter()
+            .filter(|p| corner(p) || !self.px.mixed[self.px.index(*p)])
+            .collect())
     }
 
     /// Traces `list` (pixel indices, untraced, no duplicates) in chunks, honouring the
@@ -517,6 +573,7 @@ fn counts(classes: &[TriangleClass]) -> [u64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::progressive::SampleCell;
 
     struct Fn2<F>(u32, u32, F);
     impl<F: Fn(u32, u32) -> Rgb + Sync> PixelOracle for Fn2<F> {
@@ -560,7 +617,9 @@ mod tests {
             exposure: 1.0,
             max_pixels: None,
             max_time: None,
-            samples_per_pixel: 1,
+            // Dear enough pixels that the loop never finds tracing the rest cheaper than
+            // an iteration (`Plan::finish_if_cheaper`) on these small images.
+            samples_per_pixel: 4096,
             noise_compensation: true,
             pixels_per_degree: 28.0,
         }
@@ -724,6 +783,105 @@ mod tests {
                 &s
             ) > 0
         );
+    }
+
+    /// Far from final left of x = 15, final right of it.
+    struct HalfLoud;
+    impl Judge for HalfLoud {
+        fn distance(
+            &mut self,
+            _: &LinearImage,
+            c: &LinearImage,
+            _: &[PixelCoord],
+            _: u32,
+        ) -> Option<Image<f32>> {
+            Some(Image::from_fn(c.width(), c.height(), |x, _| {
+                if x < 15 {
+                    50.0
+                } else {
+                    0.0
+                }
+            }))
+        }
+    }
+
+    #[test]
+    fn the_rest_is_traced_at_once_when_that_costs_less_than_an_iteration() {
+        let mut s = settings(Oracle::Perceptual);
+        s.noise_compensation = false;
+        let (slow, slow_frames) = go(&s, &mut HalfLoud);
+        assert_ne!(slow.stats.stop_reason.as_deref(), Some("traced_rest"));
+        // Two samples a pixel: the whole image at first costs more than an iteration's
+        // work over its 600 pixels, the open left half (< 300 pixels) less.
+        s.samples_per_pixel = 2;
+        let (f, frames) = go(&s, &mut HalfLoud);
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("traced_rest"));
+        assert!(
+            frames < slow_frames,
+            "{frames} frames, {slow_frames} without"
+        );
+        let traced = f
+            .samples
+            .pixels()
+            .iter()
+            .filter(|&&c| c != SampleCell::Interpolated);
+        assert!(traced.count() as u64 == f.stats.pixels_traced);
+        for y in 0..20 {
+            for x in 0..14 {
+                assert_ne!(*f.samples.get(x, y), SampleCell::Interpolated, "({x}, {y})");
+            }
+        }
+        assert!(
+            f.stats.pixels_traced < 600,
+            "the final right half is not traced"
+        );
+    }
+
+    /// Object 0 left of x = 15, object 1 right of it; column 15's footprint spans both and
+    /// its value is their blend.
+    struct Edge;
+    impl PixelOracle for Edge {
+        fn size(&self) -> (u32, u32) {
+            (30, 20)
+        }
+        fn radiance(&self, p: PixelCoord) -> Rgb {
+            Rgb::splat(match p.x {
+                0..15 => 0.1,
+                15 => 0.5,
+                _ => 0.9,
+            })
+        }
+        fn radiance_with(&self, p: PixelCoord, _: u32, _: u64) -> Rgb {
+            self.radiance(p)
+        }
+        fn object_id(&self, p: PixelCoord) -> ObjectId {
+            u32::from(p.x >= 15)
+        }
+        fn footprint_mixed(&self, p: PixelCoord) -> bool {
+            p.x == 15
+        }
+    }
+
+    #[test]
+    fn a_mixed_footprint_is_traced_and_its_blend_spreads_nowhere() {
+        let s = settings(Oracle::Perceptual);
+        let f = run(
+            &Edge,
+            &s,
+            &mut Const(Some(0.0), 0),
+            &mut |_| {},
+            &CancelToken::new(),
+        )
+        .expect("runs");
+        for y in 0..20 {
+            assert_eq!(*f.image.get(15, y), Rgb::splat(0.5), "the blend, traced");
+            assert_ne!(*f.samples.get(15, y), SampleCell::Interpolated);
+            for x in (0..15).chain(16..30) {
+                let want = if x < 15 { 0.1 } else { 0.9 };
+                let got = f.image.get(x, y).x;
+                assert!((got - want).abs() < 1e-6, "({x}, {y}): {got}");
+            }
+        }
     }
 
     #[test]

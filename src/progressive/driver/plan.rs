@@ -10,6 +10,7 @@ use crate::scene::ObjectId;
 use rayon::prelude::*;
 
 /// One iteration's work.
+#[derive(Default)]
 pub(super) struct Plan {
     /// Pixel indices to trace, untraced, without duplicates.
     pub work: Vec<usize>,
@@ -82,4 +83,44 @@ impl Plan {
         samples.unqueue(&work);
         Self { work, complex }
     }
+
+    /// Whether tracing every untraced pixel of the triangles still open costs less than
+    /// another iteration of the loop's own work, and if so makes that the plan.
+    ///
+    /// An iteration re-triangulates, reconstructs, shades and judges the whole image,
+    /// whatever it traces: about [`ITERATION_COST_IN_SAMPLES`] path samples per image
+    /// pixel. Near the end the loop traces a handful of pixels per iteration for several
+    /// iterations; tracing what is left whole ends it at once, and every pixel it adds is
+    /// the reference's own (so the picture can only come closer to it). The rule counts
+    /// samples, not seconds, so a render is the same on any machine at any load.
+    pub(super) fn finish_if_cheaper(
+        &mut self,
+        samples: &SampleSet,
+        mesh: &Mesh,
+        classes: &[TriangleClass],
+        samples_per_pixel: u32,
+    ) -> bool {
+        let rest: Vec<usize> = classes
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c != TriangleClass::Final)
+            .flat_map(|(t, _)| mesh.raster.pixels_of(t))
+            .map(|&i| i as usize)
+            .filter(|&i| !samples.traced[i])
+            .collect();
+        let cost = rest.len() as f64 * f64::from(samples_per_pixel.max(1));
+        if rest.is_empty() || cost > ITERATION_COST_IN_SAMPLES * samples.n as f64 {
+            return false;
+        }
+        self.work = rest;
+        self.complex.clear();
+        true
+    }
 }
+
+/// What one iteration of the loop's own work (triangulation, reconstruction, shading and
+/// the vision model, all over the whole image) costs, in path samples per image pixel.
+/// Measured on a 451² corpus scene at 9 spp: ~65 ms an iteration against 0.26 µs a
+/// sample, 1.2 samples per pixel; scenes with dearer paths make it smaller, so 1 errs
+/// towards tracing.
+pub(super) const ITERATION_COST_IN_SAMPLES: f64 = 1.0;

@@ -24,6 +24,10 @@ pub(super) struct SampleSet {
     /// Surface normal at each pixel centre ([`crate::tracer::PixelOracle::surface_normal`]),
     /// which keeps the reconstruction on one face of an object.
     pub normals: Vec<glam::Vec3>,
+    /// Whether each pixel's footprint spans several objects
+    /// ([`crate::tracer::PixelOracle::footprint_mixed`]): traced at once, never a vertex
+    /// (`driver::Run::first_trace`); empty until the analysis.
+    pub mixed: Vec<bool>,
     /// Whether each vertex's reconstruction reached its target count; a triangle with an
     /// unresolved vertex is not final ([`reconstruct`]).
     pub resolved: Vec<bool>,
@@ -50,6 +54,7 @@ impl SampleSet {
             variance: vec![Rgb::ZERO; n],
             vertex: vec![Rgb::ZERO; n],
             normals: Vec::new(),
+            mixed: Vec::new(),
             resolved: vec![true; n],
             albedo: None,
             traced: vec![false; n],
