@@ -160,34 +160,68 @@ fn graph(tris: &[Tri], samples: &Samples<'_>) -> (Vec<Node>, Adjacency) {
         ..
     } = *samples;
     let at = |p: crate::raster::PixelCoord| p.y as usize * w + p.x as usize;
-    let mut pixels: Vec<usize> = tris.iter().flat_map(|t| t.v.map(at)).collect();
-    pixels.par_sort_unstable();
-    pixels.dedup();
-    let number = |p: usize| pixels.binary_search(&p).map_or(u32::MAX, |k| k as u32);
-    let mut area = vec![0f64; pixels.len()];
-    let mut count = vec![0u32; pixels.len()];
-    let mut edges: Vec<(u32, u32)> = Vec::with_capacity(tris.len() * 6);
+    // Vertices numbered in pixel order, and each one's neighbours in ascending order: a
+    // scan of the image and a bucket per vertex instead of sorting every edge (the sorts
+    // were a sixth of a render on a 451² corpus scene; the result is the same).
+    let mut node_of = vec![u32::MAX; radiance.len()];
     for t in tris {
-        let k = t.v.map(|p| number(at(p)));
-        let a = t.area2().abs() * 0.5;
-        for j in 0..3 {
-            let (u, v) = (k[j], k[(j + 1) % 3]);
-            area[u as usize] += a;
-            count[u as usize] += 1;
-            edges.push((u, v));
-            edges.push((v, u));
+        for p in t.v {
+            node_of[at(p)] = 0;
         }
     }
-    edges.par_sort_unstable();
-    edges.dedup();
+    let mut pixels = Vec::new();
+    for (i, k) in node_of.iter_mut().enumerate() {
+        if *k == 0 {
+            *k = pixels.len() as u32;
+            pixels.push(i);
+        }
+    }
+    let mut area = vec![0f64; pixels.len()];
+    let mut count = vec![0u32; pixels.len()];
+    for t in tris {
+        let a = t.area2().abs() * 0.5;
+        for p in t.v {
+            let u = node_of[at(p)] as usize;
+            area[u] += a;
+            count[u] += 1;
+        }
+    }
+    // Each triangle gives each of its vertices two directed edges, to its other two.
     let mut start = vec![0u32; pixels.len() + 1];
-    for &(u, _) in &edges {
-        start[u as usize + 1] += 1;
+    for (k, c) in count.iter().enumerate() {
+        start[k + 1] = start[k] + 2 * c;
     }
+    let mut end = start.clone();
+    let mut list = vec![0u32; start[pixels.len()] as usize];
+    for t in tris {
+        let k = t.v.map(|p| node_of[at(p)]);
+        for j in 0..3 {
+            let u = k[j] as usize;
+            for v in [k[(j + 1) % 3], k[(j + 2) % 3]] {
+                list[end[u] as usize] = v;
+                end[u] += 1;
+            }
+        }
+    }
+    // Sort and deduplicate each vertex's bucket, compacting the list in place.
+    let mut kept = 0usize;
     for k in 0..pixels.len() {
-        start[k + 1] += start[k];
+        let bucket = &mut list[start[k] as usize..end[k] as usize];
+        bucket.sort_unstable();
+        let from = start[k] as usize;
+        start[k] = kept as u32;
+        let mut last = None;
+        for j in from..end[k] as usize {
+            let v = list[j];
+            if last != Some(v) {
+                list[kept] = v;
+                kept += 1;
+                last = Some(v);
+            }
+        }
     }
-    let list = edges.into_iter().map(|(_, v)| v).collect();
+    start[pixels.len()] = kept as u32;
+    list.truncate(kept);
     let nodes = pixels
         .iter()
         .enumerate()
