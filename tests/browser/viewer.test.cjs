@@ -559,6 +559,7 @@ async function main() {
     const refused = await page.textContent("#error");
     check(refused.includes("Box-truncated.glb was refused") && /truncated/.test(refused),
       "a refused upload shows the server's message naming the file (" + refused.trim().slice(0, 90) + ")");
+    check(!(await page.isVisible("#warnings")), "and no warnings of the upload before it");
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-upload-refused.png"), fullPage: true });
     await page.click("#upload-clear");
     check(!(await page.isVisible("#upload")), "the upload can be put aside for the editor");
