@@ -9,6 +9,8 @@ usage: python3 scripts/peer_import.py SCENE.json OUT.exr [--spp N] [--size WxH] 
 """
 import argparse
 import json
+import os
+import tempfile
 
 import numpy as np
 import mitsuba as mi
@@ -61,9 +63,15 @@ def main():
         },
     }
     mats = doc["materials"]
+    tmpdir = tempfile.TemporaryDirectory(prefix="peer-import-")  # removed at exit
+    tmp = tmpdir.name
     for i, o in enumerate(doc["objects"]):
         m = mats[o["material"]]
-        shape = {"bsdf": bsdf(m)}
+        # Glimpse and pbrt reflect off both sides of a surface, Mitsuba's diffuse and
+        # conductor only off the front: wrapped in `twosided` (a dielectric has two sides).
+        b = bsdf(m)
+        shape = {"bsdf": b if m["type"] in ("dielectric", "emissive")
+                 else {"type": "twosided", "bsdf": b}}
         if m["type"] == "emissive":
             shape["emitter"] = {"type": "area", "radiance": rgb(m["radiance"])}
         if o["type"] == "sphere":
@@ -72,19 +80,19 @@ def main():
             continue
         if o["type"] != "mesh":
             raise SystemExit(f"object type {o['type']} not expressed in the peer script")
-        pos = np.array(o["positions"], dtype=np.float32)
-        idx = np.array(o["indices"], dtype=np.uint32)
-        mesh = mi.Mesh(f"o{i}", len(pos), len(idx), has_vertex_normals="normals" in o)
-        params = mi.traverse(mesh)
-        params["vertex_positions"] = pos.ravel()
-        params["faces"] = idx.ravel()
-        if "normals" in o:
-            params["vertex_normals"] = np.array(o["normals"], dtype=np.float32).ravel()
-        params.update()
-        mesh.set_bsdf(mi.load_dict(shape["bsdf"]))
-        if "emitter" in shape:
-            mesh.set_emitter(mi.load_dict(shape["emitter"]))
-        scene[f"o{i}"] = mesh
+        # Through an OBJ file: Mitsuba 3.9's Mesh has no set_emitter any more, and a
+        # shape loaded from a dict takes its BSDF and emitter as it is built. Without
+        # normals each face keeps its own (Glimpse's flat shading), not smoothed ones.
+        path = os.path.join(tmp, f"o{i}.obj")
+        with open(path, "w") as f:
+            f.writelines(f"v {p[0]!r} {p[1]!r} {p[2]!r}\n" for p in o["positions"])
+            if "normals" in o:
+                f.writelines(f"vn {n[0]!r} {n[1]!r} {n[2]!r}\n" for n in o["normals"])
+                f.writelines(f"f {a+1}//{a+1} {b+1}//{b+1} {c+1}//{c+1}\n" for a, b, c in o["indices"])
+            else:
+                f.writelines(f"f {a+1} {b+1} {c+1}\n" for a, b, c in o["indices"])
+        shape.update({"type": "obj", "filename": path, "face_normals": "normals" not in o})
+        scene[f"o{i}"] = shape
     for j, l in enumerate(doc.get("lights", [])):
         if l["type"] == "point":
             scene[f"l{j}"] = {"type": "point", "position": l["position"], "intensity": rgb(l["intensity"])}

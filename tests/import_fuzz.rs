@@ -19,10 +19,15 @@ fn cases() -> usize {
         .unwrap_or(150)
 }
 
+/// The repository's copies of the public scenes: veach-bidir is a bench scene
+/// (scenes/imported), the Khronos box a test file (tests/public-scenes).
 fn public(p: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes-public")
-        .join(p)
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    match p.split_once('/') {
+        Some(("veach-bidir-bitterli", rest)) => repo.join("scenes/imported/veach-bidir").join(rest),
+        None if p == "veach-bidir-bitterli" => repo.join("scenes/imported/veach-bidir"),
+        _ => repo.join("tests/public-scenes").join(p),
+    }
 }
 
 const EXTREMES: [&str; 8] = [

@@ -96,8 +96,7 @@ fn glb(count: u64) -> Vec<u8> {
 
 /// Veach's bidir room with its PLY files, `scene` replacing the pbrt file's text.
 fn bidir_bundle(edit: impl Fn(String) -> String, skip: Option<&str>) -> Vec<u8> {
-    let dir =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes-public/veach-bidir-bitterli");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/imported/veach-bidir");
     let text = std::fs::read_to_string(dir.join("scene-v4.pbrt")).unwrap();
     let mut entries = vec![("scene.pbrt".to_string(), edit(text).into_bytes(), 0o100_644)];
     for e in std::fs::read_dir(dir.join("models")).unwrap() {

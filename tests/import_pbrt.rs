@@ -14,10 +14,44 @@ use glimpse::raster::LinearImage;
 use glimpse::scene::Limits;
 use glimpse::tracer::{render_reference, PathTracer};
 
-fn public(scene: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes-public")
-        .join(scene)
+/// A public scene's pbrt file and its Tungsten reference EXR: the repository's copies
+/// (tests/public-scenes/README.md: the references box-averaged by a factor that divides
+/// the sizes compared here), else the shared folder beside the repository (veach-ajar,
+/// too large to keep), with a failure naming the file that is missing.
+fn public(folder: &str) -> (PathBuf, PathBuf) {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let kept = repo.join("tests/public-scenes").join(folder);
+    let (scene, reference) = match folder {
+        "cornell-box-bitterli" => (
+            kept.join("scene-v4.pbrt"),
+            kept.join("TungstenRender-256x256.exr"),
+        ),
+        "veach-mis-bitterli" => (
+            kept.join("scene-v4.pbrt"),
+            kept.join("TungstenRender-256x144.exr"),
+        ),
+        "veach-bidir-bitterli" => (
+            repo.join("scenes/imported/veach-bidir/scene-v4.pbrt"),
+            kept.join("TungstenRender-256x256.exr"),
+        ),
+        _ => {
+            let shared = repo.join("../shared/scenes-public").join(folder);
+            (
+                shared.join("scene-v4.pbrt"),
+                shared.join("TungstenRender.exr"),
+            )
+        }
+    };
+    for f in [&scene, &reference] {
+        assert!(
+            f.is_file(),
+            "{} is missing: {folder} is not kept in the repository (tests/public-scenes/README.md); \
+             this test reads it from the shared public scenes beside the repository \
+             (../shared/scenes-public/{folder}/, with its models/ and textures/)",
+            f.display()
+        );
+    }
+    (scene, reference)
 }
 
 /// Mean linear RGB of a reference render (every pixel traced) of the scene at `path`,
@@ -42,7 +76,7 @@ fn mean_of(path: &Path, size: u32, spp: u32, bounces: u32) -> [f64; 3] {
 fn bitterli_cornell_box_renders_like_the_glimpse_document() {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
     let ours = mean_of(&repo.join("scenes/cornell-box.json"), 64, 256, 8);
-    let pbrt = mean_of(&public("cornell-box-bitterli/scene-v4.pbrt"), 64, 256, 8);
+    let pbrt = mean_of(&public("cornell-box-bitterli").0, 64, 256, 8);
     for c in 0..3 {
         let rel = (pbrt[c] - ours[c]).abs() / ours[c];
         assert!(
@@ -139,12 +173,12 @@ fn flip_against_tungsten(
 /// The render's display-range mean against the Tungsten reference's over `rows`; the
 /// worst relative channel difference. Prints FLIP beside it.
 fn against_tungsten(folder: &str, w: u32, h: u32, spp: u32, rows: std::ops::Range<f64>) -> f64 {
-    let dir = public(folder);
+    let (scene, reference) = public(folder);
     let (ours, ow, oh) = common::render_exr(
-        &dir.join("scene-v4.pbrt"),
+        &scene,
         &["--spp", &spp.to_string(), "--size", &format!("{w}x{h}")],
     );
-    let (refr, rw, rh) = common::read_exr(&dir.join("TungstenRender.exr"));
+    let (refr, rw, rh) = common::read_exr(&reference);
     if rows == (0.0..1.0) {
         flip_against_tungsten(folder, &ours, (ow, oh), (&refr, rw, rh));
     }

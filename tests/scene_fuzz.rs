@@ -283,3 +283,50 @@ fn mutated_scenes_are_refused_with_an_explanation_or_render_without_panic_or_nan
         "{accepted} accepted, {refused} refused"
     );
 }
+
+/// Seed 809 (`GLIMPSE_FUZZ_CASES=4000`): spheres-rough with its lamp's red radiance at
+/// 3.4e38 rendered NaN in the progressive picture. Now refused naming the field and the
+/// limit; at the limit itself (`MAX_EMISSION`) the same scene renders in both modes
+/// without NaN.
+#[test]
+fn a_lamp_at_the_emission_limit_renders_without_nan_and_beyond_it_is_refused() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let text = std::fs::read_to_string(dir.join("spheres-rough.json")).unwrap();
+    let mut doc: Value = serde_json::from_str(&text).unwrap();
+    doc["image"] = json!({ "width": 12, "height": 9 });
+    doc["render"]["samples_per_pixel"] = json!(2);
+    doc["objects"][2]["radius"] = json!(2.0);
+    doc["objects"][3]["center"][1] = json!(1.0);
+    doc["objects"][2]["center"][2] = json!(-0.0);
+    let origin = SceneOrigin::File { dir: dir.clone() };
+    let limits = Limits::command_line();
+
+    doc["materials"]["lamp"]["radiance"][0] = json!(3.4e38);
+    let e = parse_scene(&doc.to_string(), &origin, &limits).expect_err("3.4e38 is refused");
+    assert!(
+        e.problems
+            .iter()
+            .any(|p| p.path == "materials.lamp.radiance[0]" && p.message.contains("at most 1e12")),
+        "{e}"
+    );
+
+    doc["materials"]["lamp"]["radiance"][0] = json!(glimpse::scene::MAX_EMISSION);
+    let scene = parse_scene(&doc.to_string(), &origin, &limits).expect("the limit is accepted");
+    for mode in [RenderMode::Progressive, RenderMode::Guo] {
+        let tracer = PathTracer::new(&scene);
+        let opts = RenderOptions {
+            mode: Some(mode),
+            ..RenderOptions::default()
+        };
+        let frame =
+            progressive::render(&scene, &tracer, &opts, &mut |_| {}, &CancelToken::new()).unwrap();
+        let px = frame.image.pixels();
+        assert!(
+            px.iter().all(|p| p.is_finite()),
+            "{mode:?}: a non-finite pixel"
+        );
+        // The lamp is seen: the limit is reached, not clamped away.
+        let max = px.iter().map(|p| p.x).fold(0.0f32, f32::max);
+        assert!(max > 1e11, "{mode:?}: brightest red {max:e}");
+    }
+}

@@ -596,7 +596,7 @@ fn textured_and_mixed_scene_has_no_nan() {
 /// (scenes-public/cornell-box-bitterli/TungstenRender.exr, mean (0.1963, 0.1275, 0.0361)).
 #[test]
 fn cornell_box_mean_matches_tungsten_within_3_percent() {
-    let reference = reference_mean().unwrap_or([0.1963, 0.1275, 0.0361]);
+    let reference = reference_mean();
     let t = PathTracer::new(&cornell_box(96, 96, 64, 64, 2024));
     let img = render(&t);
     assert!(!img.has_non_finite());
@@ -618,23 +618,15 @@ fn assert_mean_within(m: [f64; 3], reference: [f64; 3], tol: f64) {
     }
 }
 
-/// The reference image's mean, computed from the EXR when the shared folder is present.
-fn reference_mean() -> Option<[f64; 3]> {
-    let dirs = [
-        "../shared/scenes-public",
-        "../../shared/scenes-public",
-        "/work/shared/scenes-public",
-    ];
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    for d in dirs {
-        let p = root.join(d).join("cornell-box-bitterli/TungstenRender.exr");
-        if let Ok(bytes) = std::fs::read(&p) {
-            if let Ok(img) = glimpse::raster::decode_image(&bytes) {
-                return Some(img.mean());
-            }
-        }
-    }
-    None
+/// The reference image's mean, from the repository's copy of Tungsten's render
+/// (tests/public-scenes: box-averaged to 256², the same mean as the 1024² original).
+fn reference_mean() -> [f64; 3] {
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/public-scenes/cornell-box-bitterli/TungstenRender-256x256.exr");
+    let bytes = std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    glimpse::raster::decode_image(&bytes)
+        .unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+        .mean()
 }
 
 /// The same comparison through the JSON contract, at the 256×256: scenes/cornell-box.json
@@ -657,7 +649,7 @@ fn cornell_box_json_mean_matches_tungsten_within_1_percent_at_256() {
     s.height = 256;
     s.render.samples_per_pixel = 16;
     s.render.max_bounces = 64;
-    let reference = reference_mean().unwrap_or([0.1963, 0.1275, 0.0361]);
+    let reference = reference_mean();
     assert_mean_within(render(&PathTracer::new(&s)).mean(), reference, 0.01);
 }
 

@@ -796,8 +796,8 @@ mod tests {
 
     #[test]
     fn khronos_box_keeps_the_spec_defaults() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/scenes-public/gltf-box");
+        let dir =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/public-scenes/gltf-box");
         let bytes = std::fs::read(dir.join("Box.gltf")).unwrap();
         let im = import("Box.gltf", &bytes, &DirSource { dir }, &limits()).unwrap();
         // No metallicFactor or roughnessFactor in the file: both default to 1 (glTF 2.0

@@ -340,6 +340,28 @@ pub struct UploadSettings {
     pub seed: Option<u64>,
 }
 
+impl UploadSettings {
+    /// The image size for a file whose own is `width`×`height`: the parameters given,
+    /// and one side alone keeps the file's aspect (as the viewer's size override does for
+    /// a document), rounded, at least 1.
+    #[must_use]
+    pub fn size_of(&self, width: u64, height: u64) -> (u64, u64) {
+        let follow = |given: u64, num: u64, den: u64| {
+            if num == 0 || den == 0 {
+                return num;
+            }
+            let v = (u128::from(given) * u128::from(num) + u128::from(den) / 2) / u128::from(den);
+            u64::try_from(v).unwrap_or(u64::MAX).max(1)
+        };
+        match (self.width, self.height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, follow(w, height, width)),
+            (None, Some(h)) => (follow(h, width, height), h),
+            (None, None) => (width, height),
+        }
+    }
+}
+
 /// An upload as a scene document (JSON text, what the job stores and a restart parses
 /// again) and the import's warnings. A bundle whose scene file is itself a document is
 /// returned unchanged: its own settings hold.
@@ -385,12 +407,9 @@ pub fn import_upload(
         }
     };
     let Imported { mut doc, warnings } = imported;
-    if let Some(w) = settings.width {
-        doc.image.width = w;
-    }
-    if let Some(h) = settings.height {
-        doc.image.height = h;
-    }
+    let (width, height) = settings.size_of(doc.image.width, doc.image.height);
+    doc.image.width = width;
+    doc.image.height = height;
     if let Some(s) = settings.samples_per_pixel {
         doc.render.samples_per_pixel = s;
     }
@@ -404,4 +423,29 @@ pub fn import_upload(
         ImportError::invalid("", format!("cannot write the imported document: {e}"))
     })?;
     Ok((text, warnings))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::UploadSettings;
+
+    #[test]
+    fn one_side_of_an_upload_keeps_the_files_aspect() {
+        let s = |width, height| UploadSettings {
+            width,
+            height,
+            ..UploadSettings::default()
+        };
+        assert_eq!(s(None, None).size_of(1280, 720), (1280, 720));
+        assert_eq!(s(Some(96), Some(40)).size_of(1280, 720), (96, 40));
+        assert_eq!(s(Some(96), None).size_of(1280, 720), (96, 54));
+        assert_eq!(s(None, Some(72)).size_of(1280, 720), (128, 72));
+        // Rounded to the nearest pixel, never below one; a file's zero stays for
+        // validation to name.
+        assert_eq!(s(Some(100), None).size_of(3, 2), (100, 67));
+        assert_eq!(s(Some(1), None).size_of(1000, 1), (1, 1));
+        assert_eq!(s(Some(64), None).size_of(0, 10), (64, 10));
+        assert_eq!(s(Some(64), None).size_of(10, 0), (64, 0));
+        assert_eq!(s(Some(u64::MAX), None).size_of(1, 2), (u64::MAX, u64::MAX));
+    }
 }

@@ -256,7 +256,7 @@ mod tests {
     #[test]
     fn mcguire_boxes_map_their_mtl() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/scenes-public/cornell-box-mcguire");
+            .join("tests/public-scenes/cornell-box-mcguire");
         let src = DirSource { dir: dir.clone() };
         let read = |f: &str| std::fs::read(dir.join(f)).unwrap();
         let im = import(

@@ -14,7 +14,7 @@ pub mod warnings;
 
 pub use validate::{
     parse_scene, validate_doc, Limits, Problem, SceneError, SceneErrorKind, SceneOrigin,
-    MAX_COORDINATE,
+    MAX_COORDINATE, MAX_EMISSION,
 };
 
 use glam::{Vec2, Vec3};

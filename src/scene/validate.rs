@@ -120,6 +120,14 @@ const PARALLEL_SIN: f32 = 1e-4;
 /// planet in metres is 6.4e6).
 pub const MAX_COORDINATE: f32 = 1e9;
 
+/// Largest emitted radiance, light intensity or irradiance (each channel). scene-format.md
+/// sets no range, but a pixel that sees a lamp of f32::MAX's order (3.4e38, found by
+/// `tests/scene_fuzz.rs`) is a finite estimate whose weighted sums in the progressive
+/// loop's interpolation overflow to ∞, and ∞ − ∞ is NaN in the picture. At 1e12 (the
+/// sun's disc is ~1.6e9 cd/m²) a pixel's square (1e24) summed over 2^26 pixels stays
+/// finite in f32.
+pub const MAX_EMISSION: f32 = 1e12;
+
 /// Parses and validates a scene document.
 ///
 /// Two steps: the text is parsed to a `serde_json::Value` first, so every syntax problem
@@ -438,6 +446,19 @@ impl Ctx {
             }
         }
         Vec3::from(v)
+    }
+
+    /// [`Self::nonneg3`] for light: each channel also at most [`MAX_EMISSION`].
+    fn emission3(&mut self, path: &str, v: V3) -> Vec3 {
+        for (i, c) in v.iter().enumerate() {
+            if c.is_finite() && *c > MAX_EMISSION {
+                self.err(
+                    &format!("{path}[{i}]"),
+                    format!("must be at most {MAX_EMISSION:e}, got {c:e}"),
+                );
+            }
+        }
+        self.nonneg3(path, v)
     }
 
     fn positive(&mut self, path: &str, v: f32) {
@@ -860,7 +881,7 @@ fn check_materials(
                 Material::Dielectric { ior: d.ior, tint }
             }
             MaterialDoc::Emissive(e) => Material::Emissive {
-                radiance: cx.nonneg3(&format!("{p}.radiance"), e.radiance),
+                radiance: cx.emission3(&format!("{p}.radiance"), e.radiance),
                 two_sided: e.two_sided,
             },
         };
@@ -1310,7 +1331,7 @@ fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
     match l {
         LightDoc::Point(pl) => Light::Point {
             position: world_position(cx, &format!("{p}.position"), pl.position),
-            intensity: cx.nonneg3(&format!("{p}.intensity"), pl.intensity),
+            intensity: cx.emission3(&format!("{p}.intensity"), pl.intensity),
         },
         LightDoc::Directional(d) => {
             let dp = format!("{p}.direction");
@@ -1322,11 +1343,11 @@ fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
             }
             Light::Directional {
                 direction,
-                irradiance: cx.nonneg3(&format!("{p}.irradiance"), d.irradiance),
+                irradiance: cx.emission3(&format!("{p}.irradiance"), d.irradiance),
             }
         }
         LightDoc::Environment(e) => Light::Environment {
-            radiance: cx.nonneg3(&format!("{p}.radiance"), e.radiance),
+            radiance: cx.emission3(&format!("{p}.radiance"), e.radiance),
         },
         LightDoc::Spot(s) => {
             let dp = format!("{p}.direction");
@@ -1350,7 +1371,7 @@ fn check_light(cx: &mut Ctx, p: &str, l: &LightDoc) -> Light {
             Light::Spot {
                 position: world_position(cx, &format!("{p}.position"), s.position),
                 direction,
-                intensity: cx.nonneg3(&format!("{p}.intensity"), s.intensity),
+                intensity: cx.emission3(&format!("{p}.intensity"), s.intensity),
                 cos_inner: inner.to_radians().cos(),
                 cos_outer: outer.to_radians().cos(),
                 falloff: match s.falloff {
@@ -1922,6 +1943,32 @@ mod tests {
                 with(|v| v["lights"] = json!([{"type": "environment", "radiance": [0,-0.1,0]}])),
                 "lights[0].radiance[1]",
                 "≥ 0",
+            ),
+            // A lamp near f32::MAX made NaN in the progressive picture (scene_fuzz seed 809).
+            (
+                with(|v| v["materials"]["lamp"]["radiance"] = json!([3.4e38, 1, 1])),
+                "materials.lamp.radiance[0]",
+                "at most 1e12, got 3.4e38",
+            ),
+            (
+                with(|v| {
+                    v["lights"] =
+                        json!([{"type": "point", "position": [0,1,0], "intensity": [1, 2e12, 1]}])
+                }),
+                "lights[0].intensity[1]",
+                "at most 1e12",
+            ),
+            (
+                with(
+                    |v| v["lights"] = json!([{"type": "directional", "direction": [0,-1,0], "irradiance": [1, 1, 1e13]}]),
+                ),
+                "lights[0].irradiance[2]",
+                "at most 1e12",
+            ),
+            (
+                with(|v| v["lights"] = json!([{"type": "environment", "radiance": [1e30, 0, 0]}])),
+                "lights[0].radiance[0]",
+                "at most 1e12",
             ),
             (
                 with(|v| v["render"] = json!({"samples_per_pixel": 0})),

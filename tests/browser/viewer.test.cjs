@@ -28,6 +28,11 @@
 //    reload it spans the iterations the server kept, and an earlier iteration's classes
 //    layer differs from the final (flat) one, with its legend and the slider in view at
 //    1440×900.
+// Issue 15 (uploads): a .glb, a .gltf (packed into a zip bundle by the page) and a zip of a
+// pbrt scene with its PLY files are each named before Render, sent with the size and
+// samples overrides as query parameters, stream and finish (screenshots -glb, -gltf,
+// -pbrt-zip); the import's warnings are shown; a truncated .glb is refused with the
+// server's message naming the file (-upload-refused).
 "use strict";
 
 const fs = require("fs");
@@ -80,6 +85,73 @@ async function api(method, p, body) {
   let json = null;
   try { json = JSON.parse(text); } catch (_) { /* not JSON */ }
   return { status: res.status, json, text };
+}
+
+// Upload fixtures in a temporary folder: the Khronos Box (tests/public-scenes/gltf-box) as
+// its own .gltf and as a .glb built here (the data URI's bytes as the BIN chunk, glTF 2.0
+// §4.4), that .glb cut short, and a zip of Veach's bidir room (scenes/imported/veach-bidir:
+// its pbrt file and PLY meshes) with stored entries.
+function fixtures() {
+  const repo = path.resolve(__dirname, "../..");
+  const dir = fs.mkdtempSync(path.join(os.tmpdir(), "glimpse-uploads-"));
+  const gltfPath = path.join(repo, "tests/public-scenes/gltf-box/Box.gltf");
+  const gltf = JSON.parse(fs.readFileSync(gltfPath, "utf8"));
+  const uri = gltf.buffers[0].uri;
+  const bin = Buffer.from(uri.slice(uri.indexOf(",") + 1), "base64");
+  delete gltf.buffers[0].uri;
+  const pad = (b, c) => Buffer.concat([b, Buffer.alloc((4 - (b.length % 4)) % 4, c)]);
+  const json = pad(Buffer.from(JSON.stringify(gltf)), 0x20), data = pad(bin, 0);
+  const chunk = (type, body) => {
+    const h = Buffer.alloc(8);
+    h.writeUInt32LE(body.length, 0); h.writeUInt32LE(type, 4);
+    return Buffer.concat([h, body]);
+  };
+  const body = Buffer.concat([chunk(0x4e4f534a, json), chunk(0x004e4942, data)]);
+  const head = Buffer.alloc(12);
+  head.write("glTF", 0); head.writeUInt32LE(2, 4); head.writeUInt32LE(12 + body.length, 8);
+  const glb = Buffer.concat([head, body]);
+  const out = {
+    dir, gltf: path.join(dir, "Box.gltf"), glb: path.join(dir, "Box.glb"),
+    truncated: path.join(dir, "Box-truncated.glb"), zip: path.join(dir, "veach-bidir.zip"),
+  };
+  fs.copyFileSync(gltfPath, out.gltf);
+  fs.writeFileSync(out.glb, glb);
+  fs.writeFileSync(out.truncated, glb.subarray(0, glb.length - 20));
+  const bidir = path.join(repo, "scenes/imported/veach-bidir");
+  const entries = [["scene-v4.pbrt", fs.readFileSync(path.join(bidir, "scene-v4.pbrt"))]];
+  for (const f of fs.readdirSync(path.join(bidir, "models")).sort())
+    entries.push(["models/" + f, fs.readFileSync(path.join(bidir, "models", f))]);
+  fs.writeFileSync(out.zip, zipStored(entries));
+  return out;
+}
+
+// A zip of stored entries (APPNOTE 6.3), CRC-32 from zlib.
+function zipStored(entries) {
+  const zlib = require("zlib");
+  const local = [], central = [];
+  let offset = 0;
+  for (const [name, data] of entries) {
+    const n = Buffer.from(name);
+    const h = Buffer.alloc(26);
+    h.writeUInt16LE(20, 0); h.writeUInt16LE(0x0800, 2); h.writeUInt16LE(0, 4);
+    h.writeUInt16LE(0, 6); h.writeUInt16LE(0x21, 8); h.writeUInt32LE(zlib.crc32(data), 10);
+    h.writeUInt32LE(data.length, 14); h.writeUInt32LE(data.length, 18);
+    h.writeUInt16LE(n.length, 22); h.writeUInt16LE(0, 24);
+    const sig = (v) => { const b = Buffer.alloc(4); b.writeUInt32LE(v, 0); return b; };
+    local.push(sig(0x04034b50), h, n, data);
+    // comment length, disk, internal attributes, then the Unix mode and the local offset
+    const tail = Buffer.alloc(14);
+    tail.writeUInt32LE((0o100644 << 16) >>> 0, 6); tail.writeUInt32LE(offset, 10);
+    const made = Buffer.alloc(2); made.writeUInt16LE(0x0314, 0);
+    central.push(sig(0x02014b50), made, h, tail, n);
+    offset += 30 + n.length + data.length;
+  }
+  const dir = Buffer.concat(central);
+  const end = Buffer.alloc(22);
+  end.writeUInt32LE(0x06054b50, 0); end.writeUInt16LE(entries.length, 8);
+  end.writeUInt16LE(entries.length, 10); end.writeUInt32LE(dir.length, 12);
+  end.writeUInt32LE(offset, 16);
+  return Buffer.concat([...local, dir, end]);
 }
 
 function check(cond, msg) {
@@ -431,6 +503,68 @@ async function main() {
     await page.click(row + " button.delete");
     await page.waitForFunction((sel) => !document.querySelector(sel), row, { timeout: T(10) });
     check((await api("GET", "/v1/jobs/" + zoomId)).status === 404, "Delete forgets the job");
+
+    // 5e. uploads: a .glb, a .gltf (packed into a zip by the page), a zip of a pbrt scene with
+    // its PLY files, and a refused one -----------------------------------------------------------
+    const files = fixtures();
+    await page.fill("#width-override", "64");
+    await page.fill("#height-override", "");
+    await page.fill("#spp-override", "4");
+    const uploaded = async (file, what, shot) => {
+      const before = (await page.textContent("#job-id")).trim();
+      await page.setInputFiles("#scene-file", file);
+      await page.waitForFunction((n) => document.querySelector("#upload-name").textContent.includes(n)
+        && !document.querySelector("#submit").disabled, path.basename(file));
+      const label = await page.textContent("#upload");
+      check(await page.isVisible("#upload") && label.includes(path.basename(file)),
+        what + ": the page names the upload before Render (" + label.trim().replace(/\s+/g, " ") + ")");
+      await page.click("#submit");
+      await page.waitForFunction((old) => {
+        const t = document.querySelector("#job-id").textContent;
+        return t && t !== old;
+      }, before);
+      check(!(await page.isVisible("#error.visible")), what + ": accepted as job " + (await page.textContent("#job-id")).trim());
+      await page.waitForFunction(() => Number(document.querySelector("#frame-img").dataset.frames) >= 1,
+        null, { timeout: T(120) });
+      await page.waitForFunction(() => document.querySelector("#job-state").textContent === "finished"
+        && document.querySelectorAll("#stats th").length >= 8, null, { timeout: T(120) });
+      await page.waitForFunction(() => {
+        const i = document.querySelector("#frame-img");
+        return i.complete && i.naturalWidth > 0;
+      });
+      const frames = await page.$eval("#frame-img", (i) => Number(i.dataset.frames));
+      const dims = await page.$eval("#frame-img", (i) => [i.naturalWidth, i.naturalHeight]);
+      const spp = await page.textContent("#job-summary");
+      check(dims[0] === 64 && /4 samples per pixel/.test(spp), what + ": streamed " + frames
+        + " frame(s) and finished at " + dims.join("x") + " (" + spp + ")");
+      const shotFile = shotPath.replace(/\.png$/, "-" + shot + ".png");
+      await page.screenshot({ path: shotFile, fullPage: true });
+      console.log("  screenshot: " + shotFile);
+      return dims;
+    };
+    await uploaded(files.glb, "a .glb", "glb");
+    const warnedGlb = await page.textContent("#warnings");
+    check(/no light/.test(warnedGlb) && /camera/.test(warnedGlb),
+      "the import's warnings are shown (" + warnedGlb.trim().slice(0, 80) + "…)");
+    check(/no light/.test(await page.textContent("#job-warnings")), "and on the job");
+    await uploaded(files.gltf, "a .gltf", "gltf");
+    check(/packed into a zip/.test(await page.textContent("#upload")), "a .gltf is packed into a zip bundle by the page");
+    const zipDims = await uploaded(files.zip, "a zip of a pbrt scene with its PLY files", "pbrt-zip");
+    check(zipDims[1] === 64, "a width alone keeps the pbrt file's square aspect (" + zipDims.join("x") + ")");
+    await page.setInputFiles("#scene-file", files.truncated);
+    await page.waitForFunction(() => /Box-truncated/.test(document.querySelector("#upload-name").textContent)
+      && !document.querySelector("#submit").disabled);
+    await page.click("#submit");
+    await page.waitForSelector("#error.visible");
+    const refused = await page.textContent("#error");
+    check(refused.includes("Box-truncated.glb was refused") && /truncated/.test(refused),
+      "a refused upload shows the server's message naming the file (" + refused.trim().slice(0, 90) + ")");
+    check(!(await page.isVisible("#warnings")), "and no warnings of the upload before it");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-upload-refused.png"), fullPage: true });
+    await page.click("#upload-clear");
+    check(!(await page.isVisible("#upload")), "the upload can be put aside for the editor");
+    await page.fill("#spp-override", "");
+    fs.rmSync(files.dir, { recursive: true, force: true });
 
     // 6. cancel from the page --------------------------------------------------------------------
     await page.fill("#width-override", "");
