@@ -1227,7 +1227,14 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
             latest = Some(Arc::clone(&lf));
             let mut j = job.clone();
             j.progress = Some(progress);
-            live.publish(j, Some(lf));
+            live.publish(j, Some(Arc::clone(&lf)));
+            if lf.preview {
+                // The preview is there to be seen at once: its PNG is encoded here, on the
+                // render's thread (~50 ms at 2048², once per job), rather than by a
+                // watcher's task competing with the render for the cores. Watchers woken
+                // by the publish wait for this encoding instead of starting their own.
+                let _ = lf.image_png_blocking();
+            }
         };
         match (inner.render)(&scene, &mut on_frame, &live.cancel) {
             Ok(f) => Outcome::Done(Box::new(f)),
