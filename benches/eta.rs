@@ -8,18 +8,26 @@
 //! counts as one mean iteration time left, and an unknown estimate counts as 100 % off.
 //! Medians over `RUNS` runs per scene, then per scene and over all scenes.
 //!
+//! Then the same on a generated corpus (`glimpse bench --corpus N --seed S`'s scenes, not
+//! the ones the estimator was looked at on): `GLIMPSE_ETA_CORPUS` scenes (default 8) of
+//! seed `GLIMPSE_ETA_SEED` (default 1), one run each, per scene and the median.
+//!
 //! Then the time from the start of a render to its first frame, for the Cornell box at
 //! 320×240, 1024×768 and 2048² (medians of `RUNS`); a render's start is when a worker
 //! begins (the service adds its queue and the scene's parse before it).
 //!
-//! Run: `cargo bench --bench eta` (2–4 minutes on 2 cores).
+//! Run: `cargo bench --bench eta` (3–5 minutes on 2 cores). `ETA_TRACE=FILE` appends
+//! every frame's statistics to FILE as JSON lines (scene, run, elapsed ms, estimate, the
+//! iteration's statistics), to replay the estimator on them.
 
+use glimpse::bench::corpus;
 use glimpse::cancel::CancelToken;
 use glimpse::progressive::eta::{Eta, EtaTracker};
 use glimpse::progressive::{self, Frame, RenderOptions};
 use glimpse::scene::examples::EXAMPLES;
 use glimpse::scene::{parse_scene, Limits, Scene, SceneOrigin};
 use glimpse::tracer::PathTracer;
+use std::io::Write;
 use std::time::Instant;
 
 const RUNS: usize = 3;
@@ -38,8 +46,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// (elapsed ms, estimate) after each frame, and the total time.
-fn observe(scene: &Scene) -> (Vec<(f64, Eta)>, f64) {
+/// (elapsed ms, estimate) after each frame, and the total time; with `ETA_TRACE=FILE`,
+/// every frame appended to FILE.
+fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64) {
     let tracer = PathTracer::new(scene);
     let mut tracker = EtaTracker::new(
         f64::from(scene.progressive.t0),
@@ -47,23 +56,25 @@ fn observe(scene: &Scene) -> (Vec<(f64, Eta)>, f64) {
     );
     let start = Instant::now();
     let mut seen = Vec::new();
-    let trace = std::env::var_os("ETA_TRACE").is_some();
+    let mut trace = std::env::var_os("ETA_TRACE").map(|path| {
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+            .expect("ETA_TRACE names a writable file")
+    });
     let mut on_frame = |f: &Frame| {
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let eta = tracker.update(f, ms);
-        if trace {
-            let d = f
-                .stats
-                .per_iteration
-                .last()
-                .map_or(f64::NAN, |s| s.mean_distance);
-            eprintln!(
-                "  {} it {} at {ms:.0} ms: d {d:.3}, traced {:.3}, eta {:?}",
-                scene.name,
-                f.iteration,
-                f.stats.pixel_fraction,
-                eta.ms()
-            );
+        if let Some(out) = &mut trace {
+            let line = serde_json::json!({
+                "scene": scene.name, "run": run, "ms": ms, "eta": eta.ms(),
+                "finishing": eta == Eta::Finishing, "iteration": f.iteration,
+                "preview": f.preview, "last": f.last, "t0": scene.progressive.t0,
+                "pixel_fraction": f.stats.pixel_fraction,
+                "it": f.stats.per_iteration.last(),
+            });
+            writeln!(out, "{line}").expect("trace written");
         }
         seen.push((ms, eta));
     };
@@ -114,44 +125,80 @@ fn first_frame_ms(scene: &Scene) -> f64 {
     first.unwrap_or(f64::NAN)
 }
 
+/// Per scene, the median errors at [`AT`] over `runs` runs, printed; returns them.
+fn study(name: &str, scene: &Scene, runs: usize) -> Vec<f64> {
+    let mut per: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
+    let mut totals = Vec::new();
+    let mut frames = Vec::new();
+    for run in 0..runs {
+        let (seen, total) = observe(scene, run);
+        for (k, &share) in AT.iter().enumerate() {
+            per[k].push(error_at(&seen, total, share));
+        }
+        totals.push(total);
+        frames.push(seen.len() as f64);
+    }
+    let m: Vec<f64> = per.into_iter().map(median).collect();
+    println!(
+        "  {name:<17} {:>5.0} % {:>5.0} % {:>5.0} %   (run {:.0} ms, {:.0} frames)",
+        m[0] * 100.0,
+        m[1] * 100.0,
+        m[2] * 100.0,
+        median(totals),
+        median(frames)
+    );
+    m
+}
+
+/// The median over scenes of each point's error, printed.
+fn summary(all: Vec<Vec<f64>>) {
+    let m: Vec<f64> = all.into_iter().map(median).collect();
+    println!(
+        "  {:<17} {:>5.0} % {:>5.0} % {:>5.0} %   (target ≤ 30 %)",
+        "median",
+        m[0] * 100.0,
+        m[1] * 100.0,
+        m[2] * 100.0
+    );
+}
+
+fn env_or(name: &str, default: u64) -> u64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
 fn main() {
     let mut all: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
     println!("ETA error (median of {RUNS} runs) at 25 / 50 / 75 % of the run:");
     for (name, text) in EXAMPLES {
         let scene = parse_scene(text, &SceneOrigin::Request, &Limits::command_line())
             .unwrap_or_else(|e| panic!("{name}: {e}"));
-        let mut per: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
-        let mut totals = Vec::new();
-        let mut frames = Vec::new();
-        for _ in 0..RUNS {
-            let (seen, total) = observe(&scene);
-            for (k, &share) in AT.iter().enumerate() {
-                per[k].push(error_at(&seen, total, share));
-            }
-            totals.push(total);
-            frames.push(seen.len() as f64);
-        }
-        let m: Vec<f64> = per.into_iter().map(median).collect();
-        println!(
-            "  {name:<15} {:>5.0} % {:>5.0} % {:>5.0} %   (run {:.0} ms, {:.0} frames)",
-            m[0] * 100.0,
-            m[1] * 100.0,
-            m[2] * 100.0,
-            median(totals),
-            median(frames)
-        );
-        for (k, v) in m.into_iter().enumerate() {
+        for (k, v) in study(name, &scene, RUNS).into_iter().enumerate() {
             all[k].push(v);
         }
     }
-    let m: Vec<f64> = all.into_iter().map(median).collect();
-    println!(
-        "  {:<15} {:>5.0} % {:>5.0} % {:>5.0} %   (target ≤ 30 %)",
-        "median",
-        m[0] * 100.0,
-        m[1] * 100.0,
-        m[2] * 100.0
+    summary(all);
+
+    let (n, seed) = (
+        env_or("GLIMPSE_ETA_CORPUS", 8),
+        env_or("GLIMPSE_ETA_SEED", 1),
     );
+    println!("ETA error on a generated corpus ({n} scenes, seed {seed}, one run each):");
+    let mut all: Vec<Vec<f64>> = vec![Vec::new(); AT.len()];
+    for generated in corpus::generate(n as usize, seed) {
+        let scene = parse_scene(
+            &generated.document,
+            &SceneOrigin::Request,
+            &Limits::command_line(),
+        )
+        .unwrap_or_else(|e| panic!("{}: {e}", generated.name));
+        for (k, v) in study(&generated.name, &scene, 1).into_iter().enumerate() {
+            all[k].push(v);
+        }
+    }
+    summary(all);
 
     println!("First frame after the render starts (median of {RUNS}), cornell-box:");
     let text = EXAMPLES

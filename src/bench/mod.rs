@@ -29,6 +29,7 @@ pub mod flip;
 pub mod judge;
 pub mod objects;
 pub mod peer;
+pub mod progress;
 pub mod report;
 pub mod sheet;
 pub mod truth;
@@ -44,6 +45,7 @@ use crate::vision::VisionModel;
 use anyhow::Context;
 use flip::{flip, FlipScore};
 use judge::{Case, Condition, SweepPoint};
+use progress::Progress;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -225,30 +227,38 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
         scenes: Vec::new(),
         corpus: Vec::new(),
     };
-    let mut files = Vec::new();
-    if cfg.bundled {
-        files = scene_files(&cfg.scenes_dir)?;
-        for path in &files {
-            let loaded = load(path, cfg)?;
-            let scene = &loaded.scene;
-            eprintln!(
-                "bench: {} ({}x{}, {} spp)",
-                scene.name, scene.width, scene.height, scene.render.samples_per_pixel
-            );
-            let r = bench_scene(&loaded, cfg)?;
-            eprintln!("{}", report::scene_table(&r));
-            study.scenes.push(r);
-        }
+    let files = if cfg.bundled {
+        scene_files(&cfg.scenes_dir)?
+    } else {
+        Vec::new()
+    };
+    let progress = Progress::new(files.len() + cfg.corpus.as_ref().map_or(0, |c| c.scenes));
+    for path in &files {
+        let loaded = load(path, cfg)?;
+        let scene = &loaded.scene;
+        progress.scene(
+            &scene.name,
+            &format!(
+                "{}x{}, {} spp",
+                scene.width, scene.height, scene.render.samples_per_pixel
+            ),
+        );
+        let r = bench_scene(&loaded, cfg, &progress)?;
+        progress.println(&report::scene_table(&r));
+        progress.scene_done();
+        study.scenes.push(r);
     }
     if let Some(c) = &cfg.corpus {
-        study.corpus = run_corpus(cfg, c)?;
+        study.corpus = run_corpus(cfg, c, &progress)?;
     }
+    progress.stage("the peer renderer and the report");
     let peer = if cfg.bundled {
         peer::run_mitsuba(cfg, &files)
     } else {
         Err("the bundled scenes were not studied (--corpus-only)".into())
     };
     report::write(cfg, &study, &peer)?;
+    progress.finish();
     Ok(study)
 }
 
@@ -282,7 +292,11 @@ fn scene_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 const IMPORTED_MAX_SIDE: u32 = 256;
 
 /// Generates the corpus into `out_dir/corpus/` and judges every scene against its truth.
-fn run_corpus(cfg: &BenchConfig, c: &CorpusConfig) -> anyhow::Result<Vec<CorpusResult>> {
+fn run_corpus(
+    cfg: &BenchConfig,
+    c: &CorpusConfig,
+    progress: &Progress,
+) -> anyhow::Result<Vec<CorpusResult>> {
     let dir = cfg.out_dir.join("corpus");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut results = Vec::new();
@@ -293,19 +307,22 @@ fn run_corpus(cfg: &BenchConfig, c: &CorpusConfig) -> anyhow::Result<Vec<CorpusR
             .with_context(|| format!("cannot write {}", path.display()))?;
         let loaded = load(&path, cfg)?;
         let s = &loaded.scene;
-        eprintln!(
-            "bench: corpus {}/{} {} ({}x{}, {} spp, {} ppd, exposure {})",
-            k + 1,
-            c.scenes,
-            s.name,
-            s.width,
-            s.height,
-            s.render.samples_per_pixel,
-            s.display.pixels_per_degree,
-            s.display.exposure
+        progress.scene(
+            &s.name,
+            &format!(
+                "corpus {}/{}, {}x{}, {} spp, {} ppd, exposure {}",
+                k + 1,
+                c.scenes,
+                s.width,
+                s.height,
+                s.render.samples_per_pixel,
+                s.display.pixels_per_degree,
+                s.display.exposure
+            ),
         );
-        let r = judge_corpus_scene(cfg, c, &loaded, file)?;
-        eprintln!("{}", report::corpus_line(&r));
+        let r = judge_corpus_scene(cfg, c, &loaded, file, progress)?;
+        progress.println(&report::corpus_line(&r));
+        progress.scene_done();
         results.push(r);
     }
     Ok(results)
@@ -318,10 +335,12 @@ fn judge_corpus_scene(
     c: &CorpusConfig,
     loaded: &Loaded,
     file: String,
+    progress: &Progress,
 ) -> anyhow::Result<CorpusResult> {
     let s = &loaded.scene;
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(s);
+    progress.stage("the converged render and the independent reference");
     let truth = truth::converged(s, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
     let judge = independent_reference(&tracer, s, &cancel)?;
     let ids = tracer::object_id_map(&tracer);
@@ -341,7 +360,10 @@ fn judge_corpus_scene(
     }
     let conditions = ppds
         .into_iter()
-        .map(|ppd| judge::at_condition(&case, ppd, &cfg.out_dir))
+        .map(|ppd| {
+            progress.stage(&format!("at {ppd} ppd"));
+            judge::at_condition(&case, ppd, &cfg.out_dir)
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok(CorpusResult {
         scene: s.name.clone(),
@@ -463,7 +485,11 @@ fn timing_runs(cfg: &BenchConfig) -> usize {
     }
 }
 
-fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult> {
+fn bench_scene(
+    loaded: &Loaded,
+    cfg: &BenchConfig,
+    progress: &Progress,
+) -> anyhow::Result<SceneResult> {
     let scene = &loaded.scene;
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(scene);
@@ -493,6 +519,7 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
     // time is the median of its runs (renders are deterministic, so every run gives the
     // same image). One run of each on this noisy machine could swing the ratio by ±0.05.
     let runs = timing_runs(cfg);
+    progress.stage(&format!("reference and progressive, {runs} timed runs"));
     let (mut ref_times, mut prog_times) = (Vec::new(), Vec::new());
     let mut timed = None;
     for _ in 0..runs {
@@ -506,6 +533,7 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
     let (reference, prog) = timed.context("at least one timing run")?;
     let (reference_ms, prog_ms) = (median(&mut ref_times), median(&mut prog_times));
     let time_split = time_split(&tracer, &prog, prog_ms, reference_ms, runs, &cancel)?;
+    progress.stage("the independent reference and the converged render");
     let judge = independent_reference(&tracer, scene, &cancel)?;
     let noise_floor = flip(&judge, &reference, exposure, ppd);
     let truth = truth::converged(scene, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
@@ -556,6 +584,7 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
 
     methods.push(loop_row("progressive", &prog, prog_ms)?);
 
+    progress.stage("without noise compensation, Guo, uniform");
     // What the noise compensation buys: F&P04 exactly as published (exact-oracle assumption).
     let (plain, plain_ms) = run_with(
         scene,
@@ -608,7 +637,7 @@ fn bench_scene(loaded: &Loaded, cfg: &BenchConfig) -> anyhow::Result<SceneResult
         runs,
         cancel: &cancel,
     };
-    let (sweep, conditions) = against_truth(&case, &reference, reference_ms, cfg)?;
+    let (sweep, conditions) = against_truth(&case, &reference, reference_ms, cfg, progress)?;
 
     // "Dark scenes cost less": the same scene shown 16× brighter must trace more pixels.
     let exposure_check = if scene.name.contains("cellar") {
@@ -654,6 +683,7 @@ fn against_truth(
     reference: &LinearImage,
     reference_ms: f64,
     cfg: &BenchConfig,
+    progress: &Progress,
 ) -> anyhow::Result<(Vec<SweepPoint>, Vec<Condition>)> {
     let (t0s, sweep_ppds): (&[f32], &[f32]) = if cfg.quick {
         (&[0.5, 1.0, 2.0], &QUICK_CONDITIONS[..1])
@@ -662,12 +692,16 @@ fn against_truth(
     };
     let mut sweep = Vec::new();
     for &p in sweep_ppds {
+        progress.stage(&format!("the t0 sweep at {p} ppd"));
         sweep.extend(judge::sweep(case, reference, reference_ms, p, t0s)?);
     }
     let conditions = cfg
         .conditions
         .iter()
-        .map(|&p| judge::at_condition(case, p, &cfg.out_dir))
+        .map(|&p| {
+            progress.stage(&format!("at {p} ppd"));
+            judge::at_condition(case, p, &cfg.out_dir)
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     Ok((sweep, conditions))
 }

@@ -6,10 +6,14 @@
 //! never judged (the loop's first frame replaces it; nothing of it is reused).
 
 use super::noise::Twin;
+use super::{ClassCell, Frame, RenderStats, SampleCell};
 use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
+use crate::scene::BACKGROUND_ID;
 use crate::tracer::{self, PixelOracle};
 use rayon::prelude::*;
+use std::sync::Arc;
+use std::time::Instant;
 
 /// Images with fewer pixels get no preview: their first frame comes about as fast
 /// (76 ms at 320×240 on two cores).
@@ -47,6 +51,40 @@ pub fn preview(
     let values = tracer::trace_pixels(&twin, &grid.points(), cancel)?;
     let values = despeckle(&grid, &values);
     Ok(grid.interpolate(&values))
+}
+
+/// The preview as a frame of a render in `mode` (iteration 0, `preview`, nothing traced):
+/// only its image means anything; the other layers are the cheapest valid ones (a
+/// 2048² frame's layers are ~70 MB, and this frame is on the path to the first picture).
+pub fn frame(
+    oracle: &impl PixelOracle,
+    samples: u32,
+    seed: u64,
+    mode: &str,
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
+    let start = Instant::now();
+    let image = preview(oracle, samples, seed, cancel)?;
+    let (w, h) = oracle.size();
+    let ms = start.elapsed().as_secs_f64() * 1e3;
+    Ok(Frame {
+        iteration: 0,
+        image,
+        samples: Image::filled(w, h, SampleCell::Interpolated),
+        distance: None,
+        classes: Image::filled(w, h, ClassCell::None),
+        objects: Arc::new(Image::filled(w, h, BACKGROUND_ID)),
+        stats: RenderStats {
+            mode: mode.into(),
+            width: w,
+            height: h,
+            trace_ms: ms,
+            total_ms: ms,
+            ..RenderStats::default()
+        },
+        last: false,
+        preview: true,
+    })
 }
 
 /// Grid points every `spacing` pixels along each axis, and the last row and column.

@@ -433,6 +433,27 @@ async function main() {
     check(order[0] < order[1] && order[0] < 844, "on a narrow screen the open job's picture comes first (" + order.map(Math.round).join(" < ") + ")");
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-narrow-job.png"), fullPage: false });
     await page.setViewportSize({ width: 1280, height: 900 });
+
+    // 5b'. a large image's preview -----------------------------------------------------------------
+    await page.fill("#scene-text", JSON.stringify(FALLBACK_SCENE, null, 2));
+    await page.fill("#width-override", "640");
+    await page.fill("#height-override", "480");
+    await page.click("#submit");
+    await page.waitForFunction(() => /preview/.test(document.querySelector("#iteration").textContent),
+      null, { timeout: T(60), polling: 5 });
+    const previewEta = await page.textContent("#eta");
+    check(!/waiting/.test(previewEta), "a large image's first frame is called a preview, with no iteration done, and the job is no longer 'waiting' (" + previewEta + ")");
+    await page.screenshot({ path: shotPath.replace(/\.png$/, "-preview.png"), fullPage: false });
+    // The stream skips frames a slow page has not taken yet: the first one after the preview
+    // may be a later iteration.
+    await page.waitForFunction(() => /^[1-9][0-9]*$/.test(document.querySelector("#iteration").textContent),
+      null, { timeout: T(120) });
+    const after = await page.textContent("#iteration");
+    const timingRows = await page.$$eval("#iterations tr", (rows) => rows.length);
+    check(timingRows >= 1, "then the iterations are counted from 1 (" + after + " done, " + timingRows + " timing rows)");
+    if (!(await page.isDisabled("#cancel"))) await page.click("#cancel");
+    await page.waitForFunction(() => document.querySelector("#cancel").disabled, null, { timeout: T(60) });
+    await page.fill("#height-override", "");
     await page.fill("#width-override", "");
 
     // 5c. zoom and pan, smooth downscaling -------------------------------------------------------

@@ -36,7 +36,7 @@ use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
 use crate::raster::{Image, LinearImage, PixelCoord, Rgb};
-use crate::scene::{ObjectId, BACKGROUND_ID};
+use crate::scene::ObjectId;
 use crate::tracer::{self, PixelOracle};
 use budget::Budget;
 use classifier::{Classification, Classifier, Guo, Perceptual, View};
@@ -55,6 +55,16 @@ pub enum Oracle {
     Perceptual,
     /// Guo 1998 via Mitchell's contrast test (spec §4.3); no final class.
     Guo,
+}
+
+impl Oracle {
+    /// The render mode it makes (`RenderStats::mode`).
+    fn mode(self) -> &'static str {
+        match self {
+            Oracle::Perceptual => "progressive",
+            Oracle::Guo => "guo",
+        }
+    }
 }
 
 /// Everything the loop needs besides the pixel oracle.
@@ -113,14 +123,21 @@ pub fn run<O: PixelOracle>(
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
-    let mut r = Run::new(oracle, s);
     if cancel.is_cancelled() {
         return Err(Cancelled);
     }
-    if r.px.n >= preview::FROM_PIXELS {
-        on_frame(&r.preview(cancel)?);
-    }
-    let (w, h) = (r.px.w, r.px.h);
+    let (start, (w, h)) = (Instant::now(), oracle.size());
+    // Before the render's per-pixel state, which takes ~0.1 s to allocate at 2048².
+    let preview = if w as usize * h as usize >= preview::FROM_PIXELS {
+        let f = preview::frame(oracle, s.samples_per_pixel, s.seed, s.oracle.mode(), cancel)?;
+        on_frame(&f);
+        f.stats.trace_ms
+    } else {
+        0.0
+    };
+    let mut r = Run::new(oracle, s);
+    r.start = start;
+    r.stats.trace_ms = preview;
     let (ids, seeds) = r.analyse();
     if w < 2 || h < 2 {
         return r.trace_whole(ids, on_frame, cancel);
@@ -225,10 +242,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     fn new(oracle: &'a O, s: &'a Settings) -> Self {
         let start = Instant::now();
         let (w, h) = oracle.size();
-        let mode = match s.oracle {
-            Oracle::Perceptual => "progressive",
-            Oracle::Guo => "guo",
-        };
+        let mode = s.oracle.mode();
         Self {
             oracle,
             s,
@@ -243,27 +257,6 @@ impl<'a, O: PixelOracle> Run<'a, O> {
             },
             it: IterationStats::default(),
         }
-    }
-
-    /// A coarse picture of a large image before its analysis ([`preview`]).
-    fn preview(&mut self, cancel: &CancelToken) -> Result<Frame, Cancelled> {
-        let t = Instant::now();
-        let s = self.s;
-        let image = preview::preview(self.oracle, s.samples_per_pixel, s.seed, cancel)?;
-        self.stats.trace_ms += t.elapsed().as_secs_f64() * 1e3;
-        self.finish_stats();
-        let (w, h) = (self.px.w, self.px.h);
-        Ok(Frame {
-            iteration: 0,
-            image,
-            samples: self.px.layer(0),
-            distance: None,
-            classes: Image::filled(w, h, ClassCell::None),
-            objects: Arc::new(Image::filled(w, h, BACKGROUND_ID)),
-            stats: self.stats.clone(),
-            last: false,
-            preview: true,
-        })
     }
 
     /// §4.1: the object-id map (one primary ray per pixel) and the surface normals beside
