@@ -89,11 +89,11 @@ pub trait PixelOracle: Sync {
         false
     }
     /// Whether the pixel's footprint (the box its estimate integrates) spans more than one
-    /// object: the camera rays through its centre and its four [`ALBEDO_TAPS`] do not all
-    /// see the same object. Such a pixel's value is a blend that no object's vertices can
-    /// interpolate (an antialiased silhouette, a horizon, a wire thinner than a pixel). An
-    /// oracle that cannot tell answers `false`.
-    fn footprint_mixed(&self, _p: PixelCoord) -> bool {
+    /// object: the camera rays through its four [`ALBEDO_TAPS`] do not all see `centre`,
+    /// the object its centre sees ([`PixelOracle::object_id`]). Such a pixel's value is a
+    /// blend that no object's vertices can interpolate (an antialiased silhouette, a
+    /// horizon, a wire thinner than a pixel). An oracle that cannot tell answers `false`.
+    fn footprint_mixed(&self, _p: PixelCoord, _centre: ObjectId) -> bool {
         false
     }
 }
@@ -237,10 +237,10 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     Image::from_vec(w, h, data).expect("size matches by construction")
 }
 
-/// [`PixelOracle::footprint_mixed`] at every pixel, row-major.
+/// [`PixelOracle::footprint_mixed`] at every pixel of the object-id map `ids`, row-major.
 #[must_use]
-pub fn mixed_map(oracle: &impl PixelOracle) -> Vec<bool> {
-    every_pixel(oracle, |p| oracle.footprint_mixed(p))
+pub fn mixed_map(oracle: &impl PixelOracle, ids: &Image<ObjectId>) -> Vec<bool> {
+    every_pixel(oracle, |p| oracle.footprint_mixed(p, *ids.get(p.x, p.y)))
 }
 
 /// [`PixelOracle::surface_normal`] at every pixel, row-major.
@@ -674,8 +674,7 @@ impl PixelOracle for PathTracer {
         self.object_at(p, glam::Vec2::splat(0.5))
     }
 
-    fn footprint_mixed(&self, p: PixelCoord) -> bool {
-        let centre = self.object_id(p);
+    fn footprint_mixed(&self, p: PixelCoord, centre: ObjectId) -> bool {
         ALBEDO_TAPS.iter().any(|&t| self.object_at(p, t) != centre)
     }
 
@@ -746,8 +745,8 @@ mod tests {
     #[test]
     fn a_footprint_is_mixed_exactly_where_its_taps_see_two_objects() {
         let t = PathTracer::new(&checker_floor(false));
-        let mixed = mixed_map(&t);
         let ids = object_id_map(&t);
+        let mixed = mixed_map(&t, &ids);
         let floor = *ids.get(0, 0);
         let sphere = ids.pixels().iter().position(|&id| id != floor);
         let inside = sphere.map(|i| i + 1).expect("the sphere is in view");

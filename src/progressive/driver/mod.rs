@@ -266,7 +266,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         let t = Instant::now();
         let ids = Arc::new(tracer::object_id_map(self.oracle));
         self.px.normals = tracer::normal_map(self.oracle);
-        self.px.mixed = tracer::mixed_map(self.oracle);
+        self.px.mixed = tracer::mixed_map(self.oracle, &ids);
         let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
         let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
         self.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -850,7 +850,7 @@ mod tests {
         fn object_id(&self, p: PixelCoord) -> ObjectId {
             u32::from(p.x >= 15)
         }
-        fn footprint_mixed(&self, p: PixelCoord) -> bool {
+        fn footprint_mixed(&self, p: PixelCoord, _: ObjectId) -> bool {
             p.x == 15
         }
     }
