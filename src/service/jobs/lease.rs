@@ -21,6 +21,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
         beat
     };
     let mut frames = relay::Written::default();
+    let dir = inner.store.attempt_dir(live.id, token);
     let mut last_try = Instant::now();
     let mut last_held = Instant::now();
     loop {
@@ -32,7 +33,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
         let mut progress = None;
         if shared {
             if let Some(lf) = snap.frame.clone() {
-                progress = frames.write(&inner.store, live.id, lf).await;
+                progress = frames.write(&dir, live.id, lf).await;
             }
         }
         drop(snap);
@@ -86,9 +87,9 @@ fn lost(inner: &Inner, live: &LiveJob) {
 /// database is away; false if the lease is lost or the node stops meanwhile. Always
 /// true on the embedded store: its one node holds every lease it took.
 ///
-/// What this leaves: a worker paused for longer than a lease between this renewal and
-/// its file writes could still overwrite the final image of the worker that took over
-/// (with an image of the same scene and seed); its record cannot be written.
+/// A worker paused for longer than a lease between this renewal and its file writes
+/// writes them into its own attempt's folder (`Store::attempt_dir`), which its refused
+/// end never names: the files of the worker that took over stay the job's.
 pub(super) fn fence(inner: &Inner, live: &LiveJob, token: LeaseToken) -> bool {
     if !inner.store.is_shared() {
         return true;

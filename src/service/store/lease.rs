@@ -156,7 +156,9 @@ impl Store {
     }
 
     /// running → a finished state, by the worker holding the lease; `None` (nothing
-    /// written) if `token` no longer holds it.
+    /// written) if `token` no longer holds it. The token stays in the row: on a shared
+    /// database it says which attempt's files are the job's ([`Store::files_dir`]), so
+    /// the end and the files it names are one token-checked write.
     #[allow(clippy::too_many_arguments)] // one column each, named at the call
     pub async fn finish_leased(
         &self,
@@ -170,7 +172,7 @@ impl Store {
     ) -> Result<Option<String>, StoreError> {
         fault::check(fault::Write::Finish)?;
         let finished = now_rfc3339();
-        let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6, lease_token = NULL, lease_expires_at = NULL \
+        let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6, lease_expires_at = NULL \
                  WHERE id = $7 AND lease_token = $8 AND state = 'running'";
         let n = on_pool!(self, p => sqlx::query(q)
             .bind(state.as_str())

@@ -138,6 +138,9 @@ macro_rules! on_pool {
 mod lease;
 pub use lease::{Beat, Claim, LeaseToken, Reaped, MAX_LEASE_ATTEMPTS};
 
+/// The name of an attempt's folder inside its job's, before the token ([`Store::attempt_dir`]).
+const ATTEMPT_PREFIX: &str = "attempt-";
+
 /// The job store (cheap to clone: a pool handle and a folder).
 #[derive(Clone, Debug)]
 pub struct Store {
@@ -231,6 +234,7 @@ impl Store {
             attempt: 0,
             worker: None,
             has_frame: false,
+            attempt_token: None,
         })
     }
 
@@ -389,10 +393,65 @@ impl Store {
         Ok(r == 1)
     }
 
-    /// Path of a stored layer's file: its PNG, or with `exr` the image's EXR.
+    /// The folder attempt `token` of job `id` writes its files to (its final image and
+    /// layers, its kept iterations, its relayed frames). On a shared database each
+    /// attempt has a folder of its own inside the job's, `attempt-<token>`: a worker
+    /// presumed dead that wakes up and writes late writes only there, and the end of the
+    /// job, checked against the token, records which attempt's folder is the job's
+    /// (files cannot check a token themselves). On the embedded store, whose one node
+    /// holds every lease it took, it is the job's folder itself.
     #[must_use]
-    pub fn layer_path(&self, id: Uuid, layer: Layer, exr: bool) -> PathBuf {
-        self.job_dir(id).join(layer.file_name(exr))
+    pub fn attempt_dir(&self, id: Uuid, token: LeaseToken) -> PathBuf {
+        if self.is_shared() {
+            self.job_dir(id)
+                .join(format!("{ATTEMPT_PREFIX}{}", token.0.simple()))
+        } else {
+            self.job_dir(id)
+        }
+    }
+
+    /// Where `job`'s files are: its recorded attempt's folder ([`Self::attempt_dir`]), or
+    /// the job's folder for a record without a token (the embedded store's, or one
+    /// finished before attempts had folders).
+    #[must_use]
+    pub fn files_dir(&self, job: &JobRecord) -> PathBuf {
+        match job.attempt_token {
+            Some(token) => self.attempt_dir(job.id, token),
+            None => self.job_dir(job.id),
+        }
+    }
+
+    /// Path of a stored layer's file of `job`: its PNG, or with `exr` the image's EXR.
+    #[must_use]
+    pub fn layer_path(&self, job: &JobRecord, layer: Layer, exr: bool) -> PathBuf {
+        self.files_dir(job).join(layer.file_name(exr))
+    }
+
+    /// Removes what attempt `token` wrote, once its end was refused or its lease lost
+    /// (best effort: what is left goes with the job's folder). Nothing on the embedded
+    /// store, where the attempt's folder is the job's.
+    pub fn discard_attempt_blocking(&self, id: Uuid, token: LeaseToken) {
+        if self.is_shared() {
+            let _ = std::fs::remove_dir_all(self.attempt_dir(id, token));
+        }
+    }
+
+    /// Removes the folders of `id`'s other attempts (workers lost before this one), once
+    /// this one's end is recorded. Best effort, as [`Self::discard_attempt_blocking`].
+    pub fn remove_other_attempts_blocking(&self, id: Uuid, token: LeaseToken) {
+        if !self.is_shared() {
+            return;
+        }
+        let keep = self.attempt_dir(id, token);
+        let Ok(entries) = std::fs::read_dir(self.job_dir(id)) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name();
+            if name.to_string_lossy().starts_with(ATTEMPT_PREFIX) && e.path() != keep {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
     }
 }
 
