@@ -788,6 +788,18 @@ impl Jobs {
         Ok(Watch::Stored(Box::new(job), frame))
     }
 
+    /// What a stream follows next once the channel [`Self::watch`] gave it closed before
+    /// the job finished: on a shared database the job left this node's worker (its lease
+    /// was lost, or the node released it) and runs again, on a worker of any node, so the
+    /// stream follows it there. `None` on the embedded store and while this node stops:
+    /// there the job waits for a restart, and the stream ends.
+    pub async fn watch_again(&self, id: Uuid) -> Result<Option<Watch>, StoreError> {
+        if !self.inner.store.is_shared() || self.inner.shutting_down.load(Ordering::SeqCst) {
+            return Ok(None);
+        }
+        self.watch(id).await.map(Some)
+    }
+
     /// The stored final image of a finished job and the layers stored beside it; `None`
     /// if its image file is gone.
     async fn stored_frame(&self, job: &JobRecord) -> Option<StoredFrame> {
