@@ -543,15 +543,26 @@ async fn a_stale_attempt_writing_its_final_image_late_never_replaces_the_owners(
     assert_eq!((owned.attempt, owned.worker.as_deref()), (2, Some("owner")));
     let owner_dir = store.files_dir(&owned);
     assert_ne!(owner_dir, stale_dir);
-    assert_eq!(attempt_folders(&store, id), [owner_dir.clone()]);
+    // The image as served from its stored file (while the owner still writes its
+    // other layers, the job is served from its memory).
     let served = || async {
-        match jobs.frame(id, Layer::Image, false).await.unwrap() {
-            FrameLookup::Found(FrameBytes::File(path)) => std::fs::read(path).unwrap(),
-            _ => panic!("the final image is not served"),
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            match jobs.frame(id, Layer::Image, false).await.unwrap() {
+                FrameLookup::Found(FrameBytes::File(path)) => break std::fs::read(path).unwrap(),
+                FrameLookup::Found(FrameBytes::Memory(_)) => {}
+                _ => panic!("the final image is not served"),
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "never served from its file"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
         }
     };
     let owners_png = served().await;
     assert!(owners_png.starts_with(b"\x89PNG"));
+    assert_eq!(attempt_folders(&store, id), [owner_dir.clone()]);
 
     // The stale worker wakes up right before its write: files cannot check its token,
     // so the write lands, in its own folder; then its end is refused by the token.

@@ -2,7 +2,7 @@
 //! before its files are written, and the reaper every node runs.
 
 use super::{relay, Inner, LiveJob, WRITE_RETRY};
-use crate::service::store::{Beat, LeaseToken, MAX_LEASE_ATTEMPTS};
+use crate::service::store::{Beat, LeaseToken, News, MAX_LEASE_ATTEMPTS};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
@@ -55,6 +55,10 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
                         .fetch_add(1, Ordering::Relaxed);
                 }
                 last_held = Instant::now();
+                if progress.is_some() {
+                    // Its frame is in the job folder: the nodes relaying it read it now.
+                    inner.store.announce(News::Progress(live.id)).await;
+                }
                 if cancel_requested && !live.cancel.is_cancelled() {
                     tracing::info!(id = %live.id, "cancel asked on another node: stopping");
                     live.user_cancelled.store(true, Ordering::SeqCst);
@@ -143,6 +147,7 @@ pub(super) async fn reap(inner: Arc<Inner>) {
                 }
                 if r.requeued > 0 {
                     inner.wake_workers();
+                    inner.store.announce(News::Queued).await;
                 }
             }
             Err(e) => tracing::debug!("reaper: {e}"),

@@ -124,6 +124,7 @@ pub(super) fn follow(inner: &Arc<Inner>, job: JobRecord) -> watch::Receiver<Arc<
 async fn run(inner: Arc<Inner>, mut job: JobRecord, tx: watch::Sender<Arc<Snapshot>>) {
     let id = job.id;
     let mut claimed = inner.claimed.subscribe();
+    let mut progressed = inner.progressed.subscribe();
     let mut frame: Option<Arc<LiveFrame>> = None;
     loop {
         if let Some(live) = inner.live(id) {
@@ -166,12 +167,29 @@ async fn run(inner: Arc<Inner>, mut job: JobRecord, tx: watch::Sender<Arc<Snapsh
         tokio::select! {
             () = tokio::time::sleep(POLL) => {}
             _ = claimed.changed() => {}
+            () = announced(&mut progressed, id) => {}
             () = inner.stop.cancelled() => break,
         }
     }
     let mut relays = lock(&inner.relays);
     if relays.get(&id).is_some_and(|t| t.same_channel(&tx)) {
         relays.remove(&id);
+    }
+}
+
+/// Returns once another node announces progress of job `id` (`store::News`), or
+/// announcements were missed (the relay then reads the store anyway).
+async fn announced(rx: &mut tokio::sync::broadcast::Receiver<Uuid>, id: Uuid) {
+    loop {
+        match rx.recv().await {
+            Ok(of) if of == id => return,
+            Ok(_) => {}
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => return,
+            // The node stops: the relay's other branches end it.
+            Err(tokio::sync::broadcast::error::RecvError::Closed) => {
+                std::future::pending::<()>().await;
+            }
+        }
     }
 }
 

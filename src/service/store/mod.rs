@@ -8,7 +8,9 @@
 //! - [`sqlite`], [`postgres`]: opening each backend (its settings, its migrations);
 //! - [`files`]: the image files of finished jobs beside the database (`<data>/jobs/<id>/`);
 //! - [`fault`]: storage faults injected at any of these writes, for tests; [`health`]:
-//!   which kinds of writes are failing now.
+//!   which kinds of writes are failing now;
+//! - [`notify`]: `LISTEN`/`NOTIFY` news between nodes on PostgreSQL (a job queued, a
+//!   frame relayed), which hastens what the nodes also poll for.
 //!
 //! service-api.md "Durability": a job is inserted (and the transaction committed, with
 //! `synchronous = FULL` on SQLite) before the `201` leaves; at start-up [`Store::recover`]
@@ -20,6 +22,7 @@
 pub mod fault;
 mod files;
 pub mod health;
+mod notify;
 mod postgres;
 mod record;
 mod sqlite;
@@ -29,6 +32,7 @@ pub use files::{
     remove_iteration_blocking, write_files_blocking, write_final_image_blocking,
     write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
 };
+pub use notify::{Listener, News};
 pub use record::{JobError, JobRecord, JobState, Layer, Progress};
 
 use record::{column_text, Row, COLUMNS};
