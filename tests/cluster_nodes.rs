@@ -10,7 +10,8 @@
 //!
 //! A stream on a node whose own worker loses its job's lease (the node paused with
 //! SIGSTOP for longer than the lease while a worker node takes the job over) follows the
-//! job to the new owner's frames and its `done`.
+//! job to the new owner's frames and its `done`; that worker node serves its own
+//! `/healthz` and `/metrics` (`--metrics-addr`).
 
 mod common;
 
@@ -405,6 +406,7 @@ async fn a_stream_follows_its_job_when_the_nodes_worker_loses_the_lease() {
     // Node A stalls for longer than its lease; a worker node's reaper takes the job
     // back and its worker claims it.
     signal(&node, "-STOP");
+    let metrics_addr = format!("127.0.0.1:{}", free_port());
     let worker = glimpse(
         &[
             "worker",
@@ -418,6 +420,8 @@ async fn a_stream_follows_its_job_when_the_nodes_worker_loses_the_lease() {
             "w",
             "--lease",
             "1",
+            "--metrics-addr",
+            &metrics_addr,
         ],
         &logs.path().join("w.log"),
     );
@@ -439,11 +443,16 @@ async fn a_stream_follows_its_job_when_the_nodes_worker_loses_the_lease() {
     assert_eq!(last["job"]["state"], "succeeded", "{texts:?}");
     assert_eq!(last["job"]["worker"], "w", "{texts:?}");
     assert_eq!(last["job"]["attempt"], 2, "{texts:?}");
-    // The stream said where the job went, then showed the new owner's frames.
+    // Then the new owner's frames: after a `state` of the second attempt (the stream
+    // was on this node's worker's own channel) or relayed from the worker node (image
+    // layer only: the stream had joined through the store, before the claim was live).
     let moved = texts
         .iter()
-        .position(|m| m["type"] == "state" && m["job"]["attempt"] == 2)
-        .unwrap_or_else(|| panic!("no state message of the second attempt: {texts:?}"));
+        .position(|m| {
+            (m["type"] == "state" && m["job"]["attempt"] == 2)
+                || (m["type"] == "frame" && m["layers"] == serde_json::json!(["image"]))
+        })
+        .unwrap_or_else(|| panic!("nothing of the second attempt: {texts:?}"));
     assert!(
         texts[moved..].iter().any(|m| m["type"] == "frame"),
         "no frame after the move: {texts:?}"
@@ -451,5 +460,26 @@ async fn a_stream_follows_its_job_when_the_nodes_worker_loses_the_lease() {
     assert!(frames >= 2, "{frames} frames: {texts:?}");
     let node_log = std::fs::read_to_string(logs.path().join("node-a.log")).unwrap();
     assert!(node_log.contains("lease lost"), "{node_log}");
-    drop(worker);
+    // The worker node's own /healthz and /metrics (--metrics-addr), and nothing else.
+    let w = format!("http://{metrics_addr}");
+    let health = common::get_json(&c, &format!("{w}/healthz")).await;
+    assert_eq!(health["database"], "postgres", "{health}");
+    let r = c.get(format!("{w}/metrics")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    let text = r.text().await.unwrap();
+    assert!(text.contains("glimpse_node{name=\"w\"} 1"), "{text}");
+    assert!(text.contains("glimpse_claims_total 1"), "{text}");
+    let r = c.get(format!("{w}/v1/jobs")).send().await.unwrap();
+    assert_eq!(r.status(), 404);
+    // The same Host rule as an API node's without a token (no DNS rebinding).
+    let r = c
+        .get(format!("{w}/metrics"))
+        .header("Host", "attacker.example")
+        .send()
+        .await
+        .unwrap();
+    assert!(matches!(r.status().as_u16(), 403 | 421), "{}", r.status());
+    // It stops on SIGTERM, its HTTP with it.
+    assert!(worker.terminate().await.success());
+    assert!(c.get(format!("{w}/healthz")).send().await.is_err());
 }
