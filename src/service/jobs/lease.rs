@@ -48,6 +48,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
             .await;
         match beat_result {
             Ok(Beat::Held { cancel_requested }) => {
+                inner.wrote(RENEWING);
                 if last_held.elapsed() > 2 * beat {
                     inner
                         .metrics
@@ -66,15 +67,23 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
                 }
             }
             Ok(Beat::Lost) => {
+                inner.wrote(RENEWING);
                 if !live.snapshot().job.state.is_finished() {
                     lost(&inner, &live);
                 }
                 return;
             }
-            Err(e) => tracing::warn!(id = %live.id, "heartbeat failed: {e}"),
+            // Reported by /healthz on either backend: unrenewed, the lease runs out and
+            // the job goes to another attempt.
+            Err(e) => inner.write_failed(RENEWING, &e),
         }
     }
 }
+
+/// The kinds of writes `/healthz` reports while they fail.
+const RENEWING: &str = "renewing a lease";
+const REAPING: &str = "reaping expired leases";
+const FENCING: &str = "renewing a lease before the final image";
 
 /// The lease is gone: the job was presumed dead and may run elsewhere already.
 fn lost(inner: &Inner, live: &LiveJob) {
@@ -105,12 +114,16 @@ pub(super) fn fence(inner: &Inner, live: &LiveJob, token: LeaseToken) -> bool {
                 .heartbeat(live.id, token, inner.node.lease, None),
         );
         match r {
-            Ok(Beat::Held { .. }) => return true,
+            Ok(Beat::Held { .. }) => {
+                inner.wrote(FENCING);
+                return true;
+            }
             Ok(Beat::Lost) => {
+                inner.wrote(FENCING);
                 lost(inner, live);
                 return false;
             }
-            Err(e) => inner.write_failed("renewing a lease before the final image", &e),
+            Err(e) => inner.write_failed(FENCING, &e),
         }
         if inner.shutting_down.load(Ordering::SeqCst) {
             return false;
@@ -132,6 +145,7 @@ pub(super) async fn reap(inner: Arc<Inner>) {
         }
         match inner.store.reap(MAX_LEASE_ATTEMPTS).await {
             Ok(r) => {
+                inner.wrote(REAPING);
                 let total = r.requeued + r.failed + r.cancelled;
                 if total > 0 {
                     tracing::warn!(
@@ -150,7 +164,11 @@ pub(super) async fn reap(inner: Arc<Inner>) {
                     inner.store.announce(News::Queued).await;
                 }
             }
-            Err(e) => tracing::debug!("reaper: {e}"),
+            // On PostgreSQL the shared database's health is what /healthz's ping says
+            // (a failing reaper there is the database's, and every node runs one); on
+            // SQLite the store is this node's own disk.
+            Err(e) if inner.store.is_shared() => tracing::debug!("reaper: {e}"),
+            Err(e) => inner.write_failed(REAPING, &e),
         }
     }
 }

@@ -134,6 +134,7 @@ impl Store {
         lease: Duration,
         progress: Option<&Progress>,
     ) -> Result<Beat, StoreError> {
+        fault::check(fault::Write::Heartbeat)?;
         let q = format!(
             "UPDATE jobs SET lease_expires_at = {} + $1, progress = COALESCE($2, progress) \
              WHERE id = $3 AND lease_token = $4 AND state = 'running' RETURNING cancel_requested",
@@ -210,6 +211,7 @@ impl Store {
     /// after `max_attempts` attempts, and otherwise goes back to `queued` for another
     /// worker. Idempotent, and safe on any number of nodes at once.
     pub async fn reap(&self, max_attempts: u32) -> Result<Reaped, StoreError> {
+        fault::check(fault::Write::Reap)?;
         let now = now_rfc3339();
         let expired = format!("state = 'running' AND lease_expires_at < {}", self.now_ms());
         let clear = "lease_token = NULL, lease_expires_at = NULL";
