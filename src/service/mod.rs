@@ -285,7 +285,7 @@ pub async fn run_worker(
     let jobs = jobs::Jobs::start(
         store,
         node(&config, 1),
-        config.limits.clone(),
+        config.limits,
         config.queue_capacity,
         config.job_timeout,
         Arc::clone(&counters),
