@@ -562,7 +562,10 @@ async fn a_stale_attempt_writing_its_final_image_late_never_replaces_the_owners(
     };
     let owners_png = served().await;
     assert!(owners_png.starts_with(b"\x89PNG"));
-    assert_eq!(attempt_folders(&store, id), [owner_dir.clone()]);
+    assert_eq!(
+        attempt_folders(&store, id),
+        std::slice::from_ref(&owner_dir)
+    );
 
     // The stale worker wakes up right before its write: files cannot check its token,
     // so the write lands, in its own folder; then its end is refused by the token.
