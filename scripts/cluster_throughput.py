@@ -3,8 +3,8 @@
 2 workers, each on one render thread, against one API node that only serves, on the
 PostgreSQL server scripts/pg.sh starts (or GLIMPSE_TEST_DATABASE_URL). Each run gets a
 fresh database and job folder. The runs alternate (1, 2, 1, 2, ...) so that both see the
-same machine; prints each batch's time (first submission to last finish) and the ratio
-of the medians.
+same machine; prints each batch's time (first submission to last finish) with the
+load average of the minute before, and the ratio of the medians.
 
 Usage: python3 scripts/cluster_throughput.py [--repeat 3] [--jobs 8] [--size 128] [--spp 96]
 (needs `cargo build --release` first)"""
@@ -143,8 +143,10 @@ def main():
         for w in (1, 2):
             t, per_job = batch(server, w, a.jobs, a.size, a.spp)
             times[w].append(t)
+            load = os.getloadavg()[0]
             print(f"run {r + 1}: {w} worker(s), {a.jobs} jobs: {t:.2f} s "
-                  f"(a job's render: {per_job:.2f} s on average)", flush=True)
+                  f"(a job's render: {per_job:.2f} s on average; load average {load:.2f})",
+                  flush=True)
     one, two = statistics.median(times[1]), statistics.median(times[2])
     print(f"median: 1 worker {one:.2f} s, 2 workers {two:.2f} s; ratio 2/1 = {two / one:.2f}")
 

@@ -7,6 +7,11 @@
 //! mid-render and a third started; node A is killed; the database restarts. Every job
 //! succeeds, the killed worker's job in its second attempt, and node B serves every final
 //! image. Then a cancel sent to node B stops a render on a worker within 5 s.
+//!
+//! A stream on a node whose own worker loses its job's lease (the node paused with
+//! SIGSTOP for longer than the lease while a worker node takes the job over) follows the
+//! job to the new owner's frames and its `done`; that worker node serves its own
+//! `/healthz` and `/metrics` (`--metrics-addr`).
 
 mod common;
 
@@ -244,8 +249,13 @@ async fn watch(url: String) -> (Vec<Value>, usize) {
     (texts, frames)
 }
 
+/// The tests here run one at a time: each keeps both cores busy, and the first times
+/// kills against renders.
+static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn killed_workers_nodes_and_database_lose_no_job_and_a_cancel_crosses_nodes() {
+    let _turn = ONE_AT_A_TIME.lock().await;
     let pg = Postgres::start();
     let data = tempfile::tempdir().unwrap();
     let cl = Cluster {
@@ -343,4 +353,133 @@ async fn killed_workers_nodes_and_database_lose_no_job_and_a_cancel_crosses_node
         cl.log(&worker)
     );
     eprintln!("cancel across nodes: {took:?}");
+}
+
+/// `kill -SIG pid`.
+fn signal(p: &Proc, sig: &str) {
+    let pid = p.0.id().to_string();
+    let st = Command::new("kill").args([sig, &pid]).status().unwrap();
+    assert!(st.success(), "kill {sig} {pid}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_follows_its_job_when_the_nodes_worker_loses_the_lease() {
+    let _turn = ONE_AT_A_TIME.lock().await;
+    let db = common::fresh_pg_database().await;
+    let data = tempfile::tempdir().unwrap();
+    let logs = tempfile::tempdir().unwrap();
+    let c = reqwest::Client::new();
+    let port = free_port();
+    let addr = format!("127.0.0.1:{port}");
+    let base = format!("http://{addr}");
+    let data_dir = data.path().to_str().unwrap();
+    let node = glimpse(
+        &[
+            "serve",
+            "--addr",
+            &addr,
+            "--workers",
+            "1",
+            "--name",
+            "node-a",
+            "--database",
+            &db,
+            "--data",
+            data_dir,
+            "--lease",
+            "1",
+        ],
+        &logs.path().join("node-a.log"),
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while c.get(format!("{base}/healthz")).send().await.is_err() {
+        assert!(Instant::now() < deadline, "node A did not come up");
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    let id = common::submit(&c, &base, &scene(7, 128, 640, "progressive")).await;
+    wait_job(&c, &base, &id, Duration::from_secs(30), |j| {
+        j["state"] == "running" && j["worker"] == "node-a"
+    })
+    .await;
+    let stream = tokio::spawn(watch(format!("ws://{addr}/v1/jobs/{id}/stream")));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    // Node A stalls for longer than its lease; a worker node's reaper takes the job
+    // back and its worker claims it.
+    signal(&node, "-STOP");
+    let metrics_addr = format!("127.0.0.1:{}", free_port());
+    let worker = glimpse(
+        &[
+            "worker",
+            "--database",
+            &db,
+            "--data",
+            data_dir,
+            "--threads",
+            "1",
+            "--name",
+            "w",
+            "--lease",
+            "1",
+            "--metrics-addr",
+            &metrics_addr,
+        ],
+        &logs.path().join("w.log"),
+    );
+    let log = || std::fs::read_to_string(logs.path().join("w.log")).unwrap_or_default();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !log().contains("job started") {
+        assert!(
+            Instant::now() < deadline,
+            "the worker never took the job: {}",
+            log()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    signal(&node, "-CONT");
+
+    let (texts, frames) = stream.await.unwrap();
+    let last = texts.last().unwrap();
+    assert_eq!(last["type"], "done", "{texts:?}");
+    assert_eq!(last["job"]["state"], "succeeded", "{texts:?}");
+    assert_eq!(last["job"]["worker"], "w", "{texts:?}");
+    assert_eq!(last["job"]["attempt"], 2, "{texts:?}");
+    // Then the new owner's frames: after a `state` of the second attempt (the stream
+    // was on this node's worker's own channel) or relayed from the worker node (image
+    // layer only: the stream had joined through the store, before the claim was live).
+    let moved = texts
+        .iter()
+        .position(|m| {
+            (m["type"] == "state" && m["job"]["attempt"] == 2)
+                || (m["type"] == "frame" && m["layers"] == serde_json::json!(["image"]))
+        })
+        .unwrap_or_else(|| panic!("nothing of the second attempt: {texts:?}"));
+    assert!(
+        texts[moved..].iter().any(|m| m["type"] == "frame"),
+        "no frame after the move: {texts:?}"
+    );
+    assert!(frames >= 2, "{frames} frames: {texts:?}");
+    let node_log = std::fs::read_to_string(logs.path().join("node-a.log")).unwrap();
+    assert!(node_log.contains("lease lost"), "{node_log}");
+    // The worker node's own /healthz and /metrics (--metrics-addr), and nothing else.
+    let w = format!("http://{metrics_addr}");
+    let health = common::get_json(&c, &format!("{w}/healthz")).await;
+    assert_eq!(health["database"], "postgres", "{health}");
+    let r = c.get(format!("{w}/metrics")).send().await.unwrap();
+    assert_eq!(r.status(), 200);
+    let text = r.text().await.unwrap();
+    assert!(text.contains("glimpse_node{name=\"w\"} 1"), "{text}");
+    assert!(text.contains("glimpse_claims_total 1"), "{text}");
+    let r = c.get(format!("{w}/v1/jobs")).send().await.unwrap();
+    assert_eq!(r.status(), 404);
+    // The same Host rule as an API node's without a token (no DNS rebinding).
+    let r = c
+        .get(format!("{w}/metrics"))
+        .header("Host", "attacker.example")
+        .send()
+        .await
+        .unwrap();
+    assert!(matches!(r.status().as_u16(), 403 | 421), "{}", r.status());
+    // It stops on SIGTERM, its HTTP with it.
+    assert!(worker.terminate().await.success());
+    assert!(c.get(format!("{w}/healthz")).send().await.is_err());
 }

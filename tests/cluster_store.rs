@@ -458,10 +458,135 @@ async fn a_worker_that_lost_its_lease_stops_and_writes_nothing() {
     }
     assert_eq!(metrics.lease_losses.load(Ordering::Relaxed), 1);
     assert_eq!(metrics.claims.load(Ordering::Relaxed), 2);
-    // The first attempt wrote no end: the job is not finished and has no image.
+    // The first attempt wrote no end: the job is not finished and has no image, and the
+    // first attempt's folder is gone (only the running attempt's is left).
     let j = store.get(id).await.unwrap().unwrap();
     assert!(j.finished_at.is_none() && !j.has_frame, "{j:?}");
-    let image = store.layer_path(id, glimpse::service::store::Layer::Image, false);
+    let image = store.layer_path(&j, glimpse::service::store::Layer::Image, false);
     assert!(std::fs::read(&image).unwrap_or_default().is_empty());
+    assert_eq!(attempt_folders(&store, id), [store.files_dir(&j)]);
+    jobs.shutdown().await;
+}
+
+/// The attempts' folders in a job's folder.
+fn attempt_folders(store: &Store, id: Uuid) -> Vec<std::path::PathBuf> {
+    let mut found: Vec<_> = std::fs::read_dir(store.job_dir(id))
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_dir())
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort();
+    found
+}
+
+/// The final image's write is fenced by the attempt token, not only by a renewal of the
+/// lease: a worker that stalls for longer than its whole lease right before writing
+/// its final image (forged here: a claim whose lease runs out, whose job a real worker
+/// then takes over and finishes) writes into its own attempt's folder, its end is
+/// refused, and the job's image stays the new owner's, as served; the owner removed the
+/// stale attempt's earlier folder, and the stale one removes what it wrote late.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stale_attempt_writing_its_final_image_late_never_replaces_the_owners() {
+    use glimpse::service::jobs::{FrameBytes, FrameLookup, Jobs, Node, DEFAULT_JOB_TIMEOUT};
+    use glimpse::service::store::{prepare_job_dir_blocking, write_final_image_blocking, Layer};
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::connect(
+        &Database::Postgres(common::fresh_pg_database().await),
+        dir.path(),
+    )
+    .await
+    .unwrap();
+    let id = Uuid::now_v7();
+    store.insert(id, "contested", SPHERE).await.unwrap();
+    // The stale worker: claimed, its folder prepared (as while it renders), then silent
+    // past its lease.
+    let stale = store
+        .claim(Some("stale"), Duration::from_millis(50))
+        .await
+        .unwrap()
+        .unwrap();
+    let stale_dir = store.attempt_dir(id, stale.token);
+    prepare_job_dir_blocking(&stale_dir).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    // A node whose reaper takes the job back and whose worker renders it to the end.
+    let node = Node {
+        name: Some("owner".to_owned()),
+        workers: 1,
+        lease: Duration::from_secs(1),
+    };
+    let jobs = Jobs::start_with(
+        store.clone(),
+        node,
+        glimpse::service::server_limits(),
+        8,
+        DEFAULT_JOB_TIMEOUT,
+        std::sync::Arc::new(glimpse::service::metrics::Metrics::default()),
+        glimpse::service::jobs::render_scene,
+    )
+    .await
+    .unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(15);
+    let owned = loop {
+        let j = store.get(id).await.unwrap().unwrap();
+        if j.state == JobState::Succeeded {
+            break j;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "never finished: {j:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    assert_eq!((owned.attempt, owned.worker.as_deref()), (2, Some("owner")));
+    let owner_dir = store.files_dir(&owned);
+    assert_ne!(owner_dir, stale_dir);
+    // The image as served from its stored file (while the owner still writes its
+    // other layers, the job is served from its memory).
+    let served = || async {
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            match jobs.frame(id, Layer::Image, false).await.unwrap() {
+                FrameLookup::Found(FrameBytes::File(path)) => break std::fs::read(path).unwrap(),
+                FrameLookup::Found(FrameBytes::Memory(_)) => {}
+                _ => panic!("the final image is not served"),
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "never served from its file"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    };
+    let owners_png = served().await;
+    assert!(owners_png.starts_with(b"\x89PNG"));
+    assert_eq!(
+        attempt_folders(&store, id),
+        std::slice::from_ref(&owner_dir)
+    );
+
+    // The stale worker wakes up right before its write: files cannot check its token,
+    // so the write lands, in its own folder; then its end is refused by the token.
+    write_final_image_blocking(&stale_dir, b"the stale attempt's image").unwrap();
+    let end = store
+        .finish_leased(
+            id,
+            stale.token,
+            JobState::Succeeded,
+            Some(&progress(9)),
+            None,
+            None,
+            true,
+        )
+        .await
+        .unwrap();
+    assert!(end.is_none(), "a stale attempt's end was recorded");
+    assert_eq!(served().await, owners_png, "the owner's image was replaced");
+    let j = store.get(id).await.unwrap().unwrap();
+    assert_eq!(j.attempt_token, owned.attempt_token);
+    store.discard_attempt_blocking(id, stale.token);
+    assert_eq!(attempt_folders(&store, id), [owner_dir]);
     jobs.shutdown().await;
 }

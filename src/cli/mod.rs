@@ -127,6 +127,14 @@ pub struct WorkerArgs {
     /// Seconds a render may run before it is stopped and its job failed (`timeout`).
     #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
     pub job_timeout: f64,
+    /// Serve this worker's `/healthz` and `/metrics` on IP:PORT (as an API node does);
+    /// none by default. Use a loopback address unless the network is trusted.
+    #[arg(long, value_name = "IP:PORT")]
+    pub metrics_addr: Option<String>,
+    /// A host name (besides the address's and `localhost`) by which `/healthz` and
+    /// `/metrics` are reached, accepted in `Host`; repeatable.
+    #[arg(long = "allowed-host", value_name = "NAME")]
+    pub allowed_hosts: Vec<String>,
     /// Log format on stderr: `text` for people, `json` (one object per line) for log
     /// collectors.
     #[arg(long, value_enum, env = "GLIMPSE_LOG_FORMAT", default_value_t = LogFormat::Text)]
@@ -278,8 +286,25 @@ fn worker(a: WorkerArgs) -> anyhow::Result<()> {
     config.node_name = a.name;
     config.lease = std::time::Duration::from_secs_f64(a.lease);
     config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
+    config.allowed_hosts = a.allowed_hosts;
     let rt = tokio::runtime::Runtime::new()?;
-    rt.block_on(crate::service::run_worker(config, shutdown_signal()))
+    rt.block_on(async move {
+        let listener = match &a.metrics_addr {
+            Some(addr) => {
+                let l = tokio::net::TcpListener::bind(addr)
+                    .await
+                    .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
+                let local = l.local_addr()?;
+                tracing::info!("/healthz and /metrics on http://{local}");
+                if !local.ip().is_loopback() {
+                    tracing::warn!("/healthz and /metrics on {local}, beyond this machine: anyone who can reach it reads this worker's counters");
+                }
+                Some(l)
+            }
+            None => None,
+        };
+        crate::service::run_worker(config, listener, shutdown_signal()).await
+    })
 }
 
 /// A lease in seconds: from 1 s (ten heartbeats of 100 ms) to an hour.

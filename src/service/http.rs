@@ -486,6 +486,25 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
 }
 
+/// A worker node's own HTTP (`glimpse worker --metrics-addr`): `/healthz` and
+/// `/metrics` as an API node answers them (the same handlers, `Host`/`Origin` checks and
+/// error shape), nothing else.
+pub fn node_router(state: AppState) -> Router {
+    Router::new()
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .fallback(not_found)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::check_origin,
+        ))
+        .layer(axum::middleware::map_response_with_state(
+            state.clone(),
+            json_errors,
+        ))
+        .with_state(state)
+}
+
 /// The whole of a request, body included, must arrive and be answered within this time
 /// (the header has its own timeout, `service::HEADER_TIMEOUT`). Without it a client
 /// sending one byte a minute holds a connection and a task for good, and enough of them

@@ -35,6 +35,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 
 mod lease;
+mod news;
 mod relay;
 use std::time::Instant;
 use tokio::sync::watch;
@@ -421,6 +422,9 @@ struct Inner {
     /// Bumped each time a worker of this node claims a job: a relay of that job switches
     /// to the worker's own channel at once.
     claimed: watch::Sender<u64>,
+    /// The ids of running jobs whose progress another node announced ([`news`]): their
+    /// relays read the store at once instead of at their next poll.
+    progressed: tokio::sync::broadcast::Sender<Uuid>,
     /// The scene of the latest submission as it was validated, so that the worker which
     /// claims it (usually one of this node's, at once) does not read the document back and
     /// parse it a second time (for an 8 MiB mesh, most of a second). One at most: a
@@ -572,6 +576,7 @@ impl Jobs {
             relays: Mutex::new(HashMap::new()),
             work: (Mutex::new(0), Condvar::new()),
             claimed: watch::Sender::new(0),
+            progressed: tokio::sync::broadcast::Sender::new(64),
             parsed: Mutex::new(None),
             metrics,
             rt: tokio::runtime::Handle::current(),
@@ -583,6 +588,7 @@ impl Jobs {
             after_done: Mutex::new(None),
         });
         tokio::spawn(lease::reap(Arc::clone(&inner)));
+        tokio::spawn(news::listen(Arc::clone(&inner)));
         let mut handles = Vec::new();
         for k in 0..workers {
             let inner2 = Arc::clone(&inner);
@@ -679,7 +685,7 @@ impl Jobs {
         if !job.has_frame {
             return Ok(FrameLookup::NoFrame);
         }
-        let path = self.inner.store.layer_path(id, layer, exr);
+        let path = self.inner.store.layer_path(&job, layer, exr);
         Ok(match tokio::fs::try_exists(&path).await {
             Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
             Ok(false) => FrameLookup::NoLayer,
@@ -698,21 +704,27 @@ impl Jobs {
     ) -> Result<FrameLookup, StoreError> {
         let live = self.live(id);
         // The live frame itself (not "the latest" looked up again, which may have moved on).
-        let live_frame = live.as_ref().and_then(|l| l.snapshot().frame.clone());
+        let live_snap = live.as_ref().map(|l| l.snapshot());
+        let live_frame = live_snap.as_ref().and_then(|s| s.frame.clone());
         if let Some(lf) = live_frame.filter(|f| f.iteration == iteration) {
             return Ok(encoded_lookup(lf, layer, false).await);
         }
-        let path = store::iteration_path(&self.inner.store.job_dir(id), iteration, layer);
+        let job = match live_snap {
+            Some(snap) => snap.job.clone(),
+            None => match self.inner.store.get(id).await? {
+                Some(job) => job,
+                None => return Ok(FrameLookup::NotFound),
+            },
+        };
+        let path = store::iteration_path(&self.inner.store.files_dir(&job), iteration, layer);
         if tokio::fs::try_exists(&path).await? {
             return Ok(FrameLookup::Found(FrameBytes::File(path)));
         }
-        if live.is_none() {
-            let Some(job) = self.inner.store.get(id).await? else {
-                return Ok(FrameLookup::NotFound);
-            };
-            if job.has_frame && job.progress.as_ref().map(|p| p.iteration) == Some(iteration) {
-                return self.frame(id, layer, false).await;
-            }
+        if live.is_none()
+            && job.has_frame
+            && job.progress.as_ref().map(|p| p.iteration) == Some(iteration)
+        {
+            return self.frame(id, layer, false).await;
         }
         let kept = self.iterations(id).await?.unwrap_or_default();
         Ok(if kept.iter().any(|k| k.iteration == iteration) {
@@ -726,23 +738,26 @@ impl Jobs {
     /// the kept earlier ones and the latest (live, or the finished job's final frame),
     /// oldest first, each with its layers.
     pub async fn iterations(&self, id: Uuid) -> Result<Option<Vec<KeptIteration>>, StoreError> {
-        let latest = match self.live(id) {
-            Some(live) => live
-                .snapshot()
-                .frame
-                .as_ref()
-                .map(|f| (f.iteration, f.layers.clone())),
+        let (latest, dir) = match self.live(id) {
+            Some(live) => {
+                let snap = live.snapshot();
+                let latest = snap.frame.as_ref().map(|f| (f.iteration, f.layers.clone()));
+                (latest, self.inner.store.files_dir(&snap.job))
+            }
             None => {
                 let Some(job) = self.inner.store.get(id).await? else {
                     return Ok(None);
                 };
-                match (job.has_frame, job.progress) {
-                    (true, Some(p)) => self.stored_frame(id).await.map(|f| (p.iteration, f.layers)),
+                let latest = match (job.has_frame, &job.progress) {
+                    (true, Some(p)) => self
+                        .stored_frame(&job)
+                        .await
+                        .map(|f| (p.iteration, f.layers)),
                     _ => None,
-                }
+                };
+                (latest, self.inner.store.files_dir(&job))
             }
         };
-        let dir = self.inner.store.job_dir(id);
         let mut kept = tokio::task::spawn_blocking(move || store::kept_iterations_blocking(&dir))
             .await
             .map_err(|e| std::io::Error::other(e.to_string()))??;
@@ -772,24 +787,36 @@ impl Jobs {
             return Ok(Watch::Live(relay::follow(&self.inner, job)));
         }
         let frame = if job.has_frame {
-            self.stored_frame(id).await
+            self.stored_frame(&job).await
         } else {
             None
         };
         Ok(Watch::Stored(Box::new(job), frame))
     }
 
+    /// What a stream follows next once the channel [`Self::watch`] gave it closed before
+    /// the job finished: on a shared database the job left this node's worker (its lease
+    /// was lost, or the node released it) and runs again, on a worker of any node, so the
+    /// stream follows it there. `None` on the embedded store and while this node stops:
+    /// there the job waits for a restart, and the stream ends.
+    pub async fn watch_again(&self, id: Uuid) -> Result<Option<Watch>, StoreError> {
+        if !self.inner.store.is_shared() || self.inner.shutting_down.load(Ordering::SeqCst) {
+            return Ok(None);
+        }
+        self.watch(id).await.map(Some)
+    }
+
     /// The stored final image of a finished job and the layers stored beside it; `None`
     /// if its image file is gone.
-    async fn stored_frame(&self, id: Uuid) -> Option<StoredFrame> {
+    async fn stored_frame(&self, job: &JobRecord) -> Option<StoredFrame> {
         let store = &self.inner.store;
-        let image = store.layer_path(id, Layer::Image, false);
+        let image = store.layer_path(job, Layer::Image, false);
         if !tokio::fs::try_exists(&image).await.unwrap_or(false) {
             return None;
         }
         let mut layers = Vec::new();
         for l in Layer::ALL {
-            if tokio::fs::try_exists(store.layer_path(id, l, false))
+            if tokio::fs::try_exists(store.layer_path(job, l, false))
                 .await
                 .unwrap_or(false)
             {
@@ -838,6 +865,7 @@ impl Jobs {
             }
         };
         inner.wake_workers();
+        inner.store.announce(store::News::Queued).await;
         inner.metrics.jobs_submitted.fetch_add(1, Ordering::Relaxed);
         // One log line per state transition, keyed by `id`, so an operator can follow a job.
         tracing::info!(%id, name, state = "queued", "job accepted");
@@ -1161,14 +1189,14 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
     };
     // The job's folder and its (empty) final image file are made durable while the job
     // renders, off the path between the render's end and `done` (store.rs).
-    let job_dir = inner.store.job_dir(id);
+    let files_dir = inner.store.attempt_dir(id, token);
     let prepared = {
-        let dir = job_dir.clone();
+        let dir = files_dir.clone();
         inner
             .rt
             .spawn_blocking(move || store::prepare_job_dir_blocking(&dir))
     };
-    let keeper = super::iterations::Keeper::start(job_dir.clone());
+    let keeper = super::iterations::Keeper::start(files_dir.clone());
     let mut latest: Option<Arc<LiveFrame>> = None;
     let mut exposure = 1.0f32;
     let mut last_pixels = 0u64;
@@ -1289,8 +1317,10 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
             (JobState::Succeeded, stats, None, Some(lf))
         }
         Outcome::Cancelled if live.lease_lost.load(Ordering::SeqCst) => {
-            // Presumed dead: the job is another worker's now. Nothing more is written.
+            // Presumed dead: the job is another worker's now. Nothing more is written,
+            // and what this attempt wrote goes.
             tracing::warn!(%id, "render stopped: its lease was lost");
+            inner.store.discard_attempt_blocking(id, token);
             return;
         }
         Outcome::Cancelled
@@ -1306,8 +1336,9 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
         Outcome::Cancelled => {
             if !live.user_cancelled.load(Ordering::SeqCst) {
                 // Shutdown, not a user: back to `queued`, to run again from the start.
-                if let Err(e) = inner.rt.block_on(inner.store.release(id, token)) {
-                    tracing::error!(%id, "cannot release job: {e}");
+                match inner.rt.block_on(inner.store.release(id, token)) {
+                    Ok(_) => inner.rt.block_on(inner.store.announce(store::News::Queued)),
+                    Err(e) => tracing::error!(%id, "cannot release job: {e}"),
                 }
                 tracing::info!(%id, state = "queued", "job released (shutdown)");
                 return;
@@ -1327,14 +1358,17 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
     // live, meanwhile), or the server stops and the restart runs the job again.
     // On a shared database the lease is renewed first: a worker presumed dead must not
     // touch the files of a job another worker now owns (`lease::fence`).
+    // A worker paused for longer than its lease after this fence writes only into its
+    // attempt's folder, which its refused end never names (`Store::attempt_dir`).
     let png = final_frame.as_ref().map(|lf| lf.image_png_blocking());
     if !lease::fence(inner, live, token) {
+        inner.store.discard_attempt_blocking(id, token);
         return;
     }
     let has_frame = match &png {
         Some(Ok(png)) => {
             if !inner.write_until_done("storing a final image", || {
-                store::write_final_image_blocking(&job_dir, png)
+                store::write_final_image_blocking(&files_dir, png)
             }) {
                 return;
             }
@@ -1347,7 +1381,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
         None => false,
     };
     if !has_frame {
-        remove_placeholder(&job_dir);
+        remove_placeholder(&files_dir);
     }
     let progress = final_frame
         .as_ref()
@@ -1374,9 +1408,11 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
         // Refused: the lease went to another worker between the fence and now.
         inner.metrics.lease_losses.fetch_add(1, Ordering::Relaxed);
         tracing::warn!(%id, "the end of the job was refused: its lease was lost");
+        inner.store.discard_attempt_blocking(id, token);
         return;
     };
-    relay::remove_frames(&job_dir);
+    relay::remove_frames(&files_dir);
+    inner.store.remove_other_attempts_blocking(id, token);
     job.finished_at = Some(finished);
     tracing::info!(
         %id,
@@ -1397,7 +1433,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
     }
     if let (true, Some(lf)) = (has_frame, &final_frame) {
         // Not retried: `DELETE` waits for these writes, and must free space on a full disk.
-        match write_secondary_files(&job_dir, lf) {
+        match write_secondary_files(&files_dir, lf) {
             Ok(()) => inner.wrote("storing a frame's other layers"),
             Err(e) => inner.write_failed("storing a frame's other layers", &e),
         }
@@ -1538,11 +1574,11 @@ mod tests {
         let encoded = metrics.frames_encoded.load(Ordering::Relaxed);
         assert_eq!(encoded, 1 + kept.len() as u64);
         for layer in Layer::ALL {
-            let png = std::fs::read(store.layer_path(id, layer, false)).unwrap();
+            let png = std::fs::read(store.job_dir(id).join(layer.file_name(false))).unwrap();
             let img = crate::raster::decode_image(&png).unwrap();
             assert_eq!((img.width(), img.height()), (8, 6), "{layer:?}");
         }
-        let exr = std::fs::read(store.layer_path(id, Layer::Image, true)).unwrap();
+        let exr = std::fs::read(store.job_dir(id).join(Layer::Image.file_name(true))).unwrap();
         let img = crate::raster::decode_image(&exr).unwrap();
         // The last frame's linear values (k = 4: blue 1.0), not an earlier frame's.
         assert_eq!(img.get(7, 5).z, 1.0);
@@ -1582,11 +1618,17 @@ mod tests {
         let rec = other.get(id).await.unwrap().unwrap();
         assert_eq!(rec.state, JobState::Succeeded);
         assert!(rec.has_frame && rec.stats.is_some() && rec.finished_at.is_some());
-        let png = std::fs::read(other.layer_path(id, Layer::Image, false)).unwrap();
+        let png = std::fs::read(other.job_dir(id).join(Layer::Image.file_name(false))).unwrap();
         let img = crate::raster::decode_image(&png).unwrap();
         assert_eq!((img.width(), img.height()), (8, 6));
-        assert!(!other.layer_path(id, Layer::Samples, false).exists());
-        assert!(!other.layer_path(id, Layer::Image, true).exists());
+        assert!(!other
+            .job_dir(id)
+            .join(Layer::Samples.file_name(false))
+            .exists());
+        assert!(!other
+            .job_dir(id)
+            .join(Layer::Image.file_name(true))
+            .exists());
         // A restart over it keeps the job finished (it is not run again).
         assert!(other.recover().await.unwrap().is_empty());
         other.close().await;
@@ -1681,7 +1723,13 @@ mod tests {
             assert_eq!(err.code, ErrorCode::RenderFailed);
             assert!(err.message.contains("boom in the tracer"), "{err:?}");
             assert!(j.has_frame && j.finished_at.is_some());
-            let png = std::fs::read(jobs.inner.store.layer_path(id, Layer::Image, false)).unwrap();
+            let png = std::fs::read(
+                jobs.inner
+                    .store
+                    .job_dir(id)
+                    .join(Layer::Image.file_name(false)),
+            )
+            .unwrap();
             assert_eq!(crate::raster::decode_image(&png).unwrap().width(), 4);
         }
         jobs.shutdown().await;

@@ -186,20 +186,7 @@ pub async fn run(
     .await
     .map_err(|e| anyhow::anyhow!("cannot start the workers: {e}"))?;
     let stop = tokio_util::sync::CancellationToken::new();
-    let state = http::AppState {
-        jobs: jobs.clone(),
-        metrics,
-        origin: Arc::new(auth::OriginPolicy::new(&config.allowed_hosts)),
-        uploads: Arc::new(tokio::sync::Semaphore::new(
-            config.validation_budget.div_ceil(1024).max(1),
-        )),
-        upload_budget_kib: config.validation_budget.div_ceil(1024).max(1),
-        token: config.token.filter(|t| !t.is_empty()).map(Arc::from),
-        stop: stop.clone(),
-        max_body_bytes: config.max_body_bytes,
-        request_deadline: config.request_deadline,
-        max_watchers: config.max_watchers,
-    };
+    let state = app_state(&config, &jobs, metrics, &stop);
     tokio::spawn(retention::run(
         jobs.clone(),
         config.data_dir.join("jobs"),
@@ -228,6 +215,33 @@ pub async fn run(
     Ok(())
 }
 
+/// What the HTTP handlers share, from the configuration.
+fn app_state(
+    config: &Config,
+    jobs: &jobs::Jobs,
+    metrics: Arc<metrics::Metrics>,
+    stop: &tokio_util::sync::CancellationToken,
+) -> http::AppState {
+    http::AppState {
+        jobs: jobs.clone(),
+        metrics,
+        origin: Arc::new(auth::OriginPolicy::new(&config.allowed_hosts)),
+        uploads: Arc::new(tokio::sync::Semaphore::new(
+            config.validation_budget.div_ceil(1024).max(1),
+        )),
+        upload_budget_kib: config.validation_budget.div_ceil(1024).max(1),
+        token: config
+            .token
+            .clone()
+            .filter(|t| !t.is_empty())
+            .map(Arc::from),
+        stop: stop.clone(),
+        max_body_bytes: config.max_body_bytes,
+        request_deadline: config.request_deadline,
+        max_watchers: config.max_watchers,
+    }
+}
+
 /// This node as the job machinery sees it: on a shared database it is named (`--name`,
 /// else [`default_node_name`]); on the embedded store it is the only node and unnamed.
 fn node(config: &Config, workers: usize) -> jobs::Node {
@@ -253,9 +267,12 @@ pub fn default_node_name() -> String {
 
 /// A worker node (`glimpse worker`, cluster.md): renders jobs claimed from the shared
 /// database, one at a time, until `shutdown` resolves; then releases its job (to
-/// `queued`, for another worker) and returns. It serves no HTTP.
+/// `queued`, for another worker) and returns. With `metrics` (`--metrics-addr`) it
+/// serves its own `/healthz` and `/metrics` there, under the same rules as an API node's
+/// (`http::node_router`); no other HTTP.
 pub async fn run_worker(
     config: Config,
+    metrics: Option<tokio::net::TcpListener>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let Some(database @ store::Database::Postgres(_)) = config.database.clone() else {
@@ -264,22 +281,33 @@ pub async fn run_worker(
     let store = store::Store::connect(&database, &config.data_dir)
         .await
         .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
+    let counters = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,
         node(&config, 1),
         config.limits,
         config.queue_capacity,
         config.job_timeout,
-        Arc::new(metrics::Metrics::default()),
+        Arc::clone(&counters),
     )
     .await
     .map_err(|e| anyhow::anyhow!("cannot start the worker: {e}"))?;
+    let stop = tokio_util::sync::CancellationToken::new();
+    let served = metrics.map(|listener| {
+        let app = http::node_router(app_state(&config, &jobs, counters, &stop));
+        let (stop, header, stall) = (stop.clone(), config.header_timeout, config.client_stall);
+        tokio::spawn(async move { serve(listener, app, &stop, header, stall).await })
+    });
     tracing::info!(
         name = jobs.node_name().unwrap_or_default(),
         "worker started on {}",
         database.display()
     );
     shutdown.await;
+    stop.cancel();
+    if let Some(served) = served {
+        let _ = served.await;
+    }
     jobs.shutdown().await;
     Ok(())
 }

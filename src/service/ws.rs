@@ -251,7 +251,15 @@ fn other(e: impl std::fmt::Display) -> StreamError {
     StreamError::Other(e.to_string())
 }
 
-/// A live job's snapshots, newest first, until it finishes (or leaves the live set).
+/// Times a stream follows its job to another attempt (a lost lease, a released job)
+/// before it stops with the job's state: more than its attempts allow, a bound only
+/// against a channel that keeps closing.
+const MAX_FOLLOWS: u32 = 16;
+
+/// A live job's snapshots, newest first, until it finishes. If its channel closes first
+/// (the job left this node's worker), it follows the job wherever it runs next
+/// (`Jobs::watch_again`), saying so with a `state` message; else it ends with the
+/// job's state.
 async fn follow(
     tx: &mut Tx,
     st: &AppState,
@@ -260,31 +268,28 @@ async fn follow(
 ) -> Result<(), StreamError> {
     let snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
     send_json(tx, &json!({"type": "state", "job": snap.job})).await?;
-    let mut snap = Some(snap);
+    drop(snap);
     // The frame last sent, by identity only: holding it would keep its buffers alive
     // while this client is slow.
     let mut sent: Weak<LiveFrame> = Weak::new();
-    while let Some(s) = snap.take() {
-        let finished = s.job.state.is_finished().then(|| final_message(&s.job));
-        let fresh = s
-            .frame
-            .clone()
-            .filter(|f| !Weak::ptr_eq(&sent, &Arc::downgrade(f)));
-        drop(s);
-        if let Some(f) = fresh {
-            sent = Arc::downgrade(&f);
-            send_frame(tx, f).await?;
-        }
-        if let Some(done) = finished {
-            send_json(tx, &done).await?;
+    for _ in 0..MAX_FOLLOWS {
+        if follow_channel(tx, &mut wrx, &mut sent).await? {
             return Ok(());
         }
-        if wrx.changed().await.is_err() {
-            // The job left the live set without a final snapshot (requeued on
-            // shutdown, or deleted): say where it stands and stop.
-            break;
+        match st.jobs.watch_again(id).await.map_err(other)? {
+            Some(Watch::Live(next)) => {
+                wrx = next;
+                let job = wrx.borrow().job.clone();
+                send_json(tx, &json!({"type": "state", "job": job})).await?;
+            }
+            Some(Watch::Stored(job, frame)) => {
+                if let Some(frame) = frame {
+                    send_stored_frame(tx, &job, frame).await?;
+                }
+                return send_json(tx, &final_message(&job)).await;
+            }
+            Some(Watch::NotFound) | None => break,
         }
-        snap = Some(wrx.borrow_and_update().clone());
     }
     if let Some(job) = st.jobs.get(id).await.map_err(other)? {
         if job.state.is_finished() {
@@ -294,6 +299,36 @@ async fn follow(
         }
     }
     Ok(())
+}
+
+/// Sends one channel's snapshots (each new frame, then `done` or `error` when the job
+/// finishes): true once finished, false if the channel closed first (requeued on
+/// shutdown, the lease lost, or deleted).
+async fn follow_channel(
+    tx: &mut Tx,
+    wrx: &mut tokio::sync::watch::Receiver<Arc<Snapshot>>,
+    sent: &mut Weak<LiveFrame>,
+) -> Result<bool, StreamError> {
+    loop {
+        let s = wrx.borrow_and_update().clone();
+        let finished = s.job.state.is_finished().then(|| final_message(&s.job));
+        let fresh = s
+            .frame
+            .clone()
+            .filter(|f| !Weak::ptr_eq(sent, &Arc::downgrade(f)));
+        drop(s);
+        if let Some(f) = fresh {
+            *sent = Arc::downgrade(&f);
+            send_frame(tx, f).await?;
+        }
+        if let Some(done) = finished {
+            send_json(tx, &done).await?;
+            return Ok(true);
+        }
+        if wrx.changed().await.is_err() {
+            return Ok(false);
+        }
+    }
 }
 
 /// The stored final frame of a finished job, read from its file fragment by fragment

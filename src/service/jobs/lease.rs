@@ -2,7 +2,7 @@
 //! before its files are written, and the reaper every node runs.
 
 use super::{relay, Inner, LiveJob, WRITE_RETRY};
-use crate::service::store::{Beat, LeaseToken, MAX_LEASE_ATTEMPTS};
+use crate::service::store::{Beat, LeaseToken, News, MAX_LEASE_ATTEMPTS};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Instant;
@@ -21,6 +21,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
         beat
     };
     let mut frames = relay::Written::default();
+    let dir = inner.store.attempt_dir(live.id, token);
     let mut last_try = Instant::now();
     let mut last_held = Instant::now();
     loop {
@@ -32,7 +33,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
         let mut progress = None;
         if shared {
             if let Some(lf) = snap.frame.clone() {
-                progress = frames.write(&inner.store, live.id, lf).await;
+                progress = frames.write(&dir, live.id, lf).await;
             }
         }
         drop(snap);
@@ -47,6 +48,7 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
             .await;
         match beat_result {
             Ok(Beat::Held { cancel_requested }) => {
+                inner.wrote(RENEWING);
                 if last_held.elapsed() > 2 * beat {
                     inner
                         .metrics
@@ -54,6 +56,10 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
                         .fetch_add(1, Ordering::Relaxed);
                 }
                 last_held = Instant::now();
+                if progress.is_some() {
+                    // Its frame is in the job folder: the nodes relaying it read it now.
+                    inner.store.announce(News::Progress(live.id)).await;
+                }
                 if cancel_requested && !live.cancel.is_cancelled() {
                     tracing::info!(id = %live.id, "cancel asked on another node: stopping");
                     live.user_cancelled.store(true, Ordering::SeqCst);
@@ -61,15 +67,23 @@ pub(super) async fn keep(inner: Arc<Inner>, live: Arc<LiveJob>, token: LeaseToke
                 }
             }
             Ok(Beat::Lost) => {
+                inner.wrote(RENEWING);
                 if !live.snapshot().job.state.is_finished() {
                     lost(&inner, &live);
                 }
                 return;
             }
-            Err(e) => tracing::warn!(id = %live.id, "heartbeat failed: {e}"),
+            // Reported by /healthz on either backend: unrenewed, the lease runs out and
+            // the job goes to another attempt.
+            Err(e) => inner.write_failed(RENEWING, &e),
         }
     }
 }
+
+/// The kinds of writes `/healthz` reports while they fail.
+const RENEWING: &str = "renewing a lease";
+const REAPING: &str = "reaping expired leases";
+const FENCING: &str = "renewing a lease before the final image";
 
 /// The lease is gone: the job was presumed dead and may run elsewhere already.
 fn lost(inner: &Inner, live: &LiveJob) {
@@ -86,9 +100,9 @@ fn lost(inner: &Inner, live: &LiveJob) {
 /// database is away; false if the lease is lost or the node stops meanwhile. Always
 /// true on the embedded store: its one node holds every lease it took.
 ///
-/// What this leaves: a worker paused for longer than a lease between this renewal and
-/// its file writes could still overwrite the final image of the worker that took over
-/// (with an image of the same scene and seed); its record cannot be written.
+/// A worker paused for longer than a lease between this renewal and its file writes
+/// writes them into its own attempt's folder (`Store::attempt_dir`), which its refused
+/// end never names: the files of the worker that took over stay the job's.
 pub(super) fn fence(inner: &Inner, live: &LiveJob, token: LeaseToken) -> bool {
     if !inner.store.is_shared() {
         return true;
@@ -100,12 +114,16 @@ pub(super) fn fence(inner: &Inner, live: &LiveJob, token: LeaseToken) -> bool {
                 .heartbeat(live.id, token, inner.node.lease, None),
         );
         match r {
-            Ok(Beat::Held { .. }) => return true,
+            Ok(Beat::Held { .. }) => {
+                inner.wrote(FENCING);
+                return true;
+            }
             Ok(Beat::Lost) => {
+                inner.wrote(FENCING);
                 lost(inner, live);
                 return false;
             }
-            Err(e) => inner.write_failed("renewing a lease before the final image", &e),
+            Err(e) => inner.write_failed(FENCING, &e),
         }
         if inner.shutting_down.load(Ordering::SeqCst) {
             return false;
@@ -127,6 +145,7 @@ pub(super) async fn reap(inner: Arc<Inner>) {
         }
         match inner.store.reap(MAX_LEASE_ATTEMPTS).await {
             Ok(r) => {
+                inner.wrote(REAPING);
                 let total = r.requeued + r.failed + r.cancelled;
                 if total > 0 {
                     tracing::warn!(
@@ -142,9 +161,14 @@ pub(super) async fn reap(inner: Arc<Inner>) {
                 }
                 if r.requeued > 0 {
                     inner.wake_workers();
+                    inner.store.announce(News::Queued).await;
                 }
             }
-            Err(e) => tracing::debug!("reaper: {e}"),
+            // On PostgreSQL the shared database's health is what /healthz's ping says
+            // (a failing reaper there is the database's, and every node runs one); on
+            // SQLite the store is this node's own disk.
+            Err(e) if inner.store.is_shared() => tracing::debug!("reaper: {e}"),
+            Err(e) => inner.write_failed(REAPING, &e),
         }
     }
 }

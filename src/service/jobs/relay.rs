@@ -16,7 +16,7 @@
 use super::{lock, Inner, LiveFrame, Snapshot};
 use crate::service::store::{JobRecord, JobState, Layer, Progress, Store};
 use bytes::Bytes;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::watch;
@@ -31,8 +31,10 @@ const POLL: Duration = Duration::from_millis(400);
 
 const PREFIX: &str = "live-";
 
-fn frame_file(store: &Store, id: Uuid, iteration: u32) -> PathBuf {
-    store.job_dir(id).join(format!("{PREFIX}{iteration}.png"))
+/// A relayed frame's file in the folder of the attempt that renders it
+/// (`Store::attempt_dir`).
+fn frame_file(dir: &Path, iteration: u32) -> PathBuf {
+    dir.join(format!("{PREFIX}{iteration}.png"))
 }
 
 /// The relayed frame a queued or running job's stored progress names, if any.
@@ -41,7 +43,7 @@ pub(super) fn latest_frame_path(store: &Store, job: &JobRecord) -> Option<PathBu
         .progress
         .as_ref()
         .filter(|_| job.state == JobState::Running)?;
-    Some(frame_file(store, job.id, p.iteration))
+    Some(frame_file(&store.files_dir(job), p.iteration))
 }
 
 /// Removes a finished job's relayed frames (best effort: a file left over is removed
@@ -65,11 +67,11 @@ pub(super) struct Written {
 }
 
 impl Written {
-    /// Writes `lf` to the job folder unless it is already there; the progress to store
-    /// with the next heartbeat if it was written.
+    /// Writes `lf` to the attempt's folder `dir` unless it is already there; the progress
+    /// to store with the next heartbeat if it was written.
     pub(super) async fn write(
         &mut self,
-        store: &Store,
+        dir: &Path,
         id: Uuid,
         lf: Arc<LiveFrame>,
     ) -> Option<Progress> {
@@ -77,7 +79,7 @@ impl Written {
             return None;
         }
         let png = lf.image_png().await.ok()?;
-        let path = frame_file(store, id, lf.iteration);
+        let path = frame_file(dir, lf.iteration);
         let write = tokio::task::spawn_blocking(move || write_atomically(&path, &png)).await;
         if let Ok(Err(e)) | Err(e) = write.map_err(std::io::Error::other) {
             tracing::warn!(%id, "cannot relay a frame: {e}");
@@ -86,7 +88,7 @@ impl Written {
         self.iterations.push(lf.iteration);
         if self.iterations.len() > 2 {
             let old = self.iterations.remove(0);
-            let _ = tokio::fs::remove_file(frame_file(store, id, old)).await;
+            let _ = tokio::fs::remove_file(frame_file(dir, old)).await;
         }
         Some(lf.progress.clone())
     }
@@ -122,6 +124,7 @@ pub(super) fn follow(inner: &Arc<Inner>, job: JobRecord) -> watch::Receiver<Arc<
 async fn run(inner: Arc<Inner>, mut job: JobRecord, tx: watch::Sender<Arc<Snapshot>>) {
     let id = job.id;
     let mut claimed = inner.claimed.subscribe();
+    let mut progressed = inner.progressed.subscribe();
     let mut frame: Option<Arc<LiveFrame>> = None;
     loop {
         if let Some(live) = inner.live(id) {
@@ -164,12 +167,29 @@ async fn run(inner: Arc<Inner>, mut job: JobRecord, tx: watch::Sender<Arc<Snapsh
         tokio::select! {
             () = tokio::time::sleep(POLL) => {}
             _ = claimed.changed() => {}
+            () = announced(&mut progressed, id) => {}
             () = inner.stop.cancelled() => break,
         }
     }
     let mut relays = lock(&inner.relays);
     if relays.get(&id).is_some_and(|t| t.same_channel(&tx)) {
         relays.remove(&id);
+    }
+}
+
+/// Returns once another node announces progress of job `id` (`store::News`), or
+/// announcements were missed (the relay then reads the store anyway).
+async fn announced(rx: &mut tokio::sync::broadcast::Receiver<Uuid>, id: Uuid) {
+    loop {
+        match rx.recv().await {
+            Ok(of) if of == id => return,
+            Ok(_) => {}
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => return,
+            // The node stops: the relay's other branches end it.
+            Err(tokio::sync::broadcast::error::RecvError::Closed) => {
+                std::future::pending::<()>().await;
+            }
+        }
     }
 }
 
@@ -225,12 +245,12 @@ async fn final_frame(inner: &Inner, job: &JobRecord) -> Option<Arc<LiveFrame>> {
         return None;
     }
     let progress = job.progress.clone()?;
-    let png = tokio::fs::read(inner.store.layer_path(job.id, Layer::Image, false))
+    let png = tokio::fs::read(inner.store.layer_path(job, Layer::Image, false))
         .await
         .ok()?;
     let mut layers = Vec::new();
     for l in Layer::ALL {
-        if tokio::fs::try_exists(inner.store.layer_path(job.id, l, false))
+        if tokio::fs::try_exists(inner.store.layer_path(job, l, false))
             .await
             .unwrap_or(false)
         {

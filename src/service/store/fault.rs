@@ -10,8 +10,8 @@
 //! empty one or the variable unset (production) means no fault; unset, a write costs one
 //! atomic load here.
 //!
-//! Only the service's own writes are listed: the store's reads never fail here, and the
-//! claim/lease statements of `lease.rs` are not yet called by the service.
+//! Only the service's own writes are listed: the store's reads never fail here. The
+//! claim is `store.start`, its end `store.finish`, a release `store.requeue`.
 
 use std::path::PathBuf;
 use std::sync::OnceLock;
@@ -43,10 +43,14 @@ pub enum Write {
     Layers,
     /// A finished job's folder removed (`DELETE`, retention).
     RemoveDir,
+    /// A running job's lease renewed (with its progress) by its worker's heartbeat.
+    Heartbeat,
+    /// Expired leases taken back by the reaper.
+    Reap,
 }
 
 impl Write {
-    pub const ALL: [Self; 12] = [
+    pub const ALL: [Self; 14] = [
         Self::Insert,
         Self::Start,
         Self::RequestCancel,
@@ -59,6 +63,8 @@ impl Write {
         Self::FinalImage,
         Self::Layers,
         Self::RemoveDir,
+        Self::Heartbeat,
+        Self::Reap,
     ];
 
     #[must_use]
@@ -76,6 +82,8 @@ impl Write {
             Self::FinalImage => "files.final_image",
             Self::Layers => "files.layers",
             Self::RemoveDir => "files.remove_dir",
+            Self::Heartbeat => "store.heartbeat",
+            Self::Reap => "store.reap",
         }
     }
 }

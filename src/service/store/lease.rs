@@ -134,6 +134,7 @@ impl Store {
         lease: Duration,
         progress: Option<&Progress>,
     ) -> Result<Beat, StoreError> {
+        fault::check(fault::Write::Heartbeat)?;
         let q = format!(
             "UPDATE jobs SET lease_expires_at = {} + $1, progress = COALESCE($2, progress) \
              WHERE id = $3 AND lease_token = $4 AND state = 'running' RETURNING cancel_requested",
@@ -156,7 +157,9 @@ impl Store {
     }
 
     /// running → a finished state, by the worker holding the lease; `None` (nothing
-    /// written) if `token` no longer holds it.
+    /// written) if `token` no longer holds it. The token stays in the row: on a shared
+    /// database it says which attempt's files are the job's ([`Store::files_dir`]), so
+    /// the end and the files it names are one token-checked write.
     #[allow(clippy::too_many_arguments)] // one column each, named at the call
     pub async fn finish_leased(
         &self,
@@ -170,7 +173,7 @@ impl Store {
     ) -> Result<Option<String>, StoreError> {
         fault::check(fault::Write::Finish)?;
         let finished = now_rfc3339();
-        let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6, lease_token = NULL, lease_expires_at = NULL \
+        let q = "UPDATE jobs SET state = $1, finished_at = $2, progress = $3, stats = $4, error = $5, has_frame = $6, lease_expires_at = NULL \
                  WHERE id = $7 AND lease_token = $8 AND state = 'running'";
         let n = on_pool!(self, p => sqlx::query(q)
             .bind(state.as_str())
@@ -208,6 +211,7 @@ impl Store {
     /// after `max_attempts` attempts, and otherwise goes back to `queued` for another
     /// worker. Idempotent, and safe on any number of nodes at once.
     pub async fn reap(&self, max_attempts: u32) -> Result<Reaped, StoreError> {
+        fault::check(fault::Write::Reap)?;
         let now = now_rfc3339();
         let expired = format!("state = 'running' AND lease_expires_at < {}", self.now_ms());
         let clear = "lease_token = NULL, lease_expires_at = NULL";

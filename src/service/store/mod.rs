@@ -8,7 +8,9 @@
 //! - [`sqlite`], [`postgres`]: opening each backend (its settings, its migrations);
 //! - [`files`]: the image files of finished jobs beside the database (`<data>/jobs/<id>/`);
 //! - [`fault`]: storage faults injected at any of these writes, for tests; [`health`]:
-//!   which kinds of writes are failing now.
+//!   which kinds of writes are failing now;
+//! - [`notify`]: `LISTEN`/`NOTIFY` news between nodes on PostgreSQL (a job queued, a
+//!   frame relayed), which hastens what the nodes also poll for.
 //!
 //! service-api.md "Durability": a job is inserted (and the transaction committed, with
 //! `synchronous = FULL` on SQLite) before the `201` leaves; at start-up [`Store::recover`]
@@ -20,6 +22,7 @@
 pub mod fault;
 mod files;
 pub mod health;
+mod notify;
 mod postgres;
 mod record;
 mod sqlite;
@@ -29,6 +32,7 @@ pub use files::{
     remove_iteration_blocking, write_files_blocking, write_final_image_blocking,
     write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
 };
+pub use notify::{Listener, News};
 pub use record::{JobError, JobRecord, JobState, Layer, Progress};
 
 use record::{column_text, Row, COLUMNS};
@@ -138,6 +142,9 @@ macro_rules! on_pool {
 mod lease;
 pub use lease::{Beat, Claim, LeaseToken, Reaped, MAX_LEASE_ATTEMPTS};
 
+/// The name of an attempt's folder inside its job's, before the token ([`Store::attempt_dir`]).
+const ATTEMPT_PREFIX: &str = "attempt-";
+
 /// The job store (cheap to clone: a pool handle and a folder).
 #[derive(Clone, Debug)]
 pub struct Store {
@@ -231,6 +238,7 @@ impl Store {
             attempt: 0,
             worker: None,
             has_frame: false,
+            attempt_token: None,
         })
     }
 
@@ -389,10 +397,65 @@ impl Store {
         Ok(r == 1)
     }
 
-    /// Path of a stored layer's file: its PNG, or with `exr` the image's EXR.
+    /// The folder attempt `token` of job `id` writes its files to (its final image and
+    /// layers, its kept iterations, its relayed frames). On a shared database each
+    /// attempt has a folder of its own inside the job's, `attempt-<token>`: a worker
+    /// presumed dead that wakes up and writes late writes only there, and the end of the
+    /// job, checked against the token, records which attempt's folder is the job's
+    /// (files cannot check a token themselves). On the embedded store, whose one node
+    /// holds every lease it took, it is the job's folder itself.
     #[must_use]
-    pub fn layer_path(&self, id: Uuid, layer: Layer, exr: bool) -> PathBuf {
-        self.job_dir(id).join(layer.file_name(exr))
+    pub fn attempt_dir(&self, id: Uuid, token: LeaseToken) -> PathBuf {
+        if self.is_shared() {
+            self.job_dir(id)
+                .join(format!("{ATTEMPT_PREFIX}{}", token.0.simple()))
+        } else {
+            self.job_dir(id)
+        }
+    }
+
+    /// Where `job`'s files are: its recorded attempt's folder ([`Self::attempt_dir`]), or
+    /// the job's folder for a record without a token (the embedded store's, or one
+    /// finished before attempts had folders).
+    #[must_use]
+    pub fn files_dir(&self, job: &JobRecord) -> PathBuf {
+        match job.attempt_token {
+            Some(token) => self.attempt_dir(job.id, token),
+            None => self.job_dir(job.id),
+        }
+    }
+
+    /// Path of a stored layer's file of `job`: its PNG, or with `exr` the image's EXR.
+    #[must_use]
+    pub fn layer_path(&self, job: &JobRecord, layer: Layer, exr: bool) -> PathBuf {
+        self.files_dir(job).join(layer.file_name(exr))
+    }
+
+    /// Removes what attempt `token` wrote, once its end was refused or its lease lost
+    /// (best effort: what is left goes with the job's folder). Nothing on the embedded
+    /// store, where the attempt's folder is the job's.
+    pub fn discard_attempt_blocking(&self, id: Uuid, token: LeaseToken) {
+        if self.is_shared() {
+            let _ = std::fs::remove_dir_all(self.attempt_dir(id, token));
+        }
+    }
+
+    /// Removes the folders of `id`'s other attempts (workers lost before this one), once
+    /// this one's end is recorded. Best effort, as [`Self::discard_attempt_blocking`].
+    pub fn remove_other_attempts_blocking(&self, id: Uuid, token: LeaseToken) {
+        if !self.is_shared() {
+            return;
+        }
+        let keep = self.attempt_dir(id, token);
+        let Ok(entries) = std::fs::read_dir(self.job_dir(id)) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name();
+            if name.to_string_lossy().starts_with(ATTEMPT_PREFIX) && e.path() != keep {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
     }
 }
 

@@ -156,6 +156,11 @@ pub struct JobRecord {
     /// True once a frame was stored (`GET .../frame` can answer after a restart).
     #[serde(skip)]
     pub has_frame: bool,
+    /// The token of the attempt that runs the job, or once it is finished the one whose
+    /// end was recorded: on a shared database its files are that attempt's
+    /// ([`super::Store::files_dir`]). Never shown.
+    #[serde(skip)]
+    pub attempt_token: Option<super::LeaseToken>,
 }
 
 /// A `jobs` row as both backends return it (every column is text or a 64-bit integer).
@@ -173,10 +178,11 @@ pub(super) struct Row {
     attempts: i64,
     worker: Option<String>,
     has_frame: i64,
+    lease_token: Option<String>,
 }
 
 pub(super) const COLUMNS: &str =
-    "id, name, state, created_at, started_at, finished_at, progress, stats, error, attempts, worker, has_frame";
+    "id, name, state, created_at, started_at, finished_at, progress, stats, error, attempts, worker, has_frame, lease_token";
 
 impl Row {
     pub(super) fn into_record(self) -> Result<JobRecord, StoreError> {
@@ -202,6 +208,12 @@ impl Row {
             attempt: u32::try_from(self.attempts).unwrap_or(0),
             worker: self.worker,
             has_frame: self.has_frame != 0,
+            // A damaged token reads as none: the files are then looked for in the job's
+            // own folder, and the job's frames answer 404 rather than the list failing.
+            attempt_token: self
+                .lease_token
+                .and_then(|t| Uuid::parse_str(&t).ok())
+                .map(super::LeaseToken),
         })
     }
 }
