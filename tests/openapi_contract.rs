@@ -388,7 +388,10 @@ fn the_schema_checker_rejects_what_it_should() {
 
 // ---- live checks ---------------------------------------------------------------------------
 
-/// A scene small enough to render in well under a second in the dev profile.
+/// A scene small enough to render in well under a second in the dev profile. Its 16
+/// samples a pixel keep the progressive loop iterating (at 1 the loop traces all 48
+/// pixels at once, cheaper than an iteration, and a job with no iteration has no distance
+/// layer).
 fn tiny_scene() -> Value {
     json!({
         "version": 1,
@@ -399,7 +402,7 @@ fn tiny_scene() -> Value {
         "objects": [ { "type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "white" } ],
         "lights": [ { "type": "point", "position": [2, 4, 5], "intensity": [50, 50, 50] },
                     { "type": "environment", "radiance": [0.1, 0.1, 0.1] } ],
-        "render": { "mode": "progressive", "samples_per_pixel": 1, "max_bounces": 1, "seed": 1 },
+        "render": { "mode": "progressive", "samples_per_pixel": 16, "max_bounces": 1, "seed": 1 },
         "progressive": { "max_iterations": 4 }
     })
 }

@@ -16,12 +16,13 @@
 //! quarter to a half of the run, so the first two frames get an estimate from the time so
 //! far, honestly wide: after the first frame (no distance yet) [`FIRST_FRAME_FACTOR`] times
 //! the time so far, within ÷2 and ×4; after the second (one distance `d`)
-//! [`ONE_DISTANCE_FACTOR`] · elapsed · ln(d / t0)², within ×0.6 and ×1.7: the iterations
-//! still needed grow as ln(d / t0) (a geometric decay) and so does the share of pixels
-//! each one refines. These constants and ranges are calibrated on the bundled scenes
-//! (`ETA_TRACE=1 cargo bench --bench eta` prints every frame), where the time left after
-//! the first frame was 6–26 times the time so far and after the second 0.8–1.65 times the
-//! estimate. With `t0 = 0` ("every pixel ends up traced") the traced-pixel fraction is
+//! [`ONE_DISTANCE_FACTOR`] · elapsed · max(ln(d / t0), ½), within ×0.5 and ×1.5: the
+//! iterations still needed grow as ln(d / t0) (a geometric decay). These constants and
+//! ranges are calibrated on the traces of the bundled scenes and of an 8-scene generated
+//! corpus together (`ETA_TRACE=FILE cargo bench --bench eta` writes every frame), with the
+//! loop that traces the open triangles whole once that is cheaper than an iteration: the
+//! time left after the first frame was 0.3–11 times the time so far (median 3.4), and
+//! after the second 1.1–2.9 times elapsed · ln(d / t0) (median 2.1). With `t0 = 0` ("every pixel ends up traced") the traced-pixel fraction is
 //! extrapolated linearly instead.
 //!
 //! The answer is a range, never a bare number: the fit's confidence (R² shrunk by the
@@ -42,12 +43,12 @@ pub const TAIL_RATIO: f64 = 0.8;
 pub const TAIL_ITERATIONS: f64 = 1.0;
 
 /// After the first frame (no distance yet), the time left is about this many times the
-/// time so far (bundled scenes: 6–26).
-pub const FIRST_FRAME_FACTOR: f64 = 7.0;
+/// time so far (bundled scenes and an 8-scene corpus: 0.3–11, median 3.4).
+pub const FIRST_FRAME_FACTOR: f64 = 3.5;
 
 /// After the second frame (one distance `d`), the time left is about this times the time
-/// so far times ln(d / t0)² (bundled scenes: ln(d / t0) of 1.5 to 2.3).
-pub const ONE_DISTANCE_FACTOR: f64 = 1.8;
+/// so far times ln(d / t0) (bundled scenes and an 8-scene corpus: 1.1–2.9, median 2.1).
+pub const ONE_DISTANCE_FACTOR: f64 = 2.1;
 
 /// What is known of the time left.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -233,8 +234,8 @@ fn after_one_distance(elapsed_ms: f64, d: f64, t0: f64) -> Eta {
     if !x.is_finite() || x <= 0.0 {
         return Eta::Finishing;
     }
-    let ms = ONE_DISTANCE_FACTOR * elapsed_ms * x * x;
-    Eta::between(ms, ms * 0.6, ms * 1.7, 0.3)
+    let ms = ONE_DISTANCE_FACTOR * elapsed_ms * x.max(0.5);
+    Eta::between(ms, ms * 0.5, ms * 1.5, 0.3)
 }
 
 struct Line {
@@ -309,13 +310,13 @@ mod tests {
 
     #[test]
     fn the_first_two_frames_get_a_wide_calibrated_range() {
-        // No distance yet: 7 times the time so far, within ÷2 and ×4.
+        // No distance yet: 3.5 times the time so far, within ÷2 and ×4.
         let mut t = EtaTracker::new(1.0, 64);
         assert_eq!(
             t.update(&frame(0, 0.0, false), 100.0),
-            Eta::between(700.0, 350.0, 2800.0, 0.1)
+            Eta::between(350.0, 175.0, 1400.0, 0.1)
         );
-        // One distance of e² JND against t0 = 1: 1.8 · 200 ms · 2² = 1440 ms, ×0.6 to ×1.7.
+        // One distance of e² JND against t0 = 1: 2.1 · 200 ms · 2 = 840 ms, ×0.5 to ×1.5.
         let eta = t.update(&frame(1, std::f64::consts::E.powi(2), false), 200.0);
         let Eta::Left {
             ms,
@@ -326,8 +327,8 @@ mod tests {
         else {
             panic!("{eta:?}")
         };
-        assert!((ms - 1440.0).abs() < 1e-6 && (low_ms - 864.0).abs() < 1e-6);
-        assert!((high_ms - 2448.0).abs() < 1e-6, "{eta:?}");
+        assert!((ms - 840.0).abs() < 1e-6 && (low_ms - 420.0).abs() < 1e-6);
+        assert!((high_ms - 1260.0).abs() < 1e-6, "{eta:?}");
         // A first distance already below t0: the end is near.
         let mut t = EtaTracker::new(1.0, 64);
         t.update(&frame(0, 0.0, false), 100.0);
