@@ -14,7 +14,6 @@ use common::{free_port, Proc};
 use futures_util::StreamExt;
 use serde_json::{json, Value};
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::{self, Message};
@@ -37,16 +36,7 @@ fn proc_kib(pid: u32, field: &str) -> Option<u64> {
 }
 
 fn glimpse(args: &[&str], log: &Path) -> Proc {
-    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .env_remove("GLIMPSE_TOKEN")
-        .env_remove("GLIMPSE_LOG_FORMAT")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(log).unwrap()))
-        .spawn()
-        .unwrap();
-    Proc(child)
+    common::glimpse(args, log, "warn")
 }
 
 /// An API node that also renders (one job at a time); waits until it answers.

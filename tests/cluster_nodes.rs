@@ -129,16 +129,7 @@ impl Drop for Postgres {
 
 /// `glimpse ARGS` with its logs in `log`.
 fn glimpse(args: &[&str], log: &Path) -> Proc {
-    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .args(args)
-        .env("RUST_LOG", "info")
-        .env_remove("GLIMPSE_TOKEN")
-        .env_remove("GLIMPSE_LOG_FORMAT")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(log).unwrap()))
-        .spawn()
-        .unwrap();
-    Proc(child)
+    common::glimpse(args, log, "info")
 }
 
 struct Cluster {

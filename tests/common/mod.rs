@@ -48,6 +48,21 @@ impl Proc {
     }
 }
 
+/// `glimpse ARGS` (any subcommand: a cluster test's API and worker nodes), its logs at
+/// `rust_log` level in `log`; it does not wait for anything.
+pub fn glimpse(args: &[&str], log: &Path, rust_log: &str) -> Proc {
+    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .args(args)
+        .env("RUST_LOG", rust_log)
+        .env_remove("GLIMPSE_TOKEN")
+        .env_remove("GLIMPSE_LOG_FORMAT")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(log).unwrap()))
+        .spawn()
+        .unwrap();
+    Proc(child)
+}
+
 /// Starts `glimpse serve` on `port` with `--data data` and `extra` flags; stderr (the logs)
 /// goes to `log` if given. Waits until `/healthz` answers.
 pub async fn spawn(
