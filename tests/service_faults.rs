@@ -189,7 +189,9 @@ async fn one_write_fails(s: &Srv, write: Write) {
             assert!(h["error"]["message"].as_str().unwrap().contains(w), "{h}");
             reported = true;
         }
-        for id in [&running, &waiting].into_iter().chain(&new) {
+        // The deleted job too: a DELETE whose record removal failed after its files were
+        // removed must not leave it succeeded without its image.
+        for id in [&running, &waiting, &done].into_iter().chain(&new) {
             s.assert_honest(id, w).await;
         }
         if delete == 204 {

@@ -895,7 +895,25 @@ impl Jobs {
         if let Some(live) = self.live(id) {
             return Ok(Some(live.snapshot().job.clone()));
         }
-        self.inner.store.get(id).await
+        let rec = self.inner.store.get(id).await?;
+        Ok(rec.filter(|r| !self.half_deleted(r)))
+    }
+
+    /// Whether `job` succeeded but its image is gone: a `DELETE` removed its files (first,
+    /// to free the space a full disk needs) and then could not remove its record. It
+    /// reads as deleted, never as succeeded without its image, and the record's removal
+    /// is tried again now (and by any later `DELETE`).
+    fn half_deleted(&self, job: &JobRecord) -> bool {
+        let store = &self.inner.store;
+        if job.state != JobState::Succeeded || store.layer_path(job, Layer::Image, false).exists() {
+            return false;
+        }
+        let jobs = self.clone();
+        let id = job.id;
+        tokio::spawn(async move {
+            let _ = jobs.remove_finished(id).await;
+        });
+        true
     }
 
     /// The scene document a job was submitted with, as its client wrote it (a JSON
@@ -927,6 +945,7 @@ impl Jobs {
         limit: u32,
     ) -> Result<Vec<JobRecord>, StoreError> {
         let mut jobs = self.inner.store.list(state, limit).await?;
+        jobs.retain(|j| !self.half_deleted(j));
         // Overlay live progress on running jobs (the store holds it only at the end).
         for j in &mut jobs {
             if j.state == JobState::Running {
@@ -990,7 +1009,12 @@ impl Jobs {
     }
 
     pub async fn delete(&self, id: Uuid) -> Result<DeleteOutcome, StoreError> {
-        let Some(rec) = self.get(id).await? else {
+        // The store's record, also when half deleted ([`Self::half_deleted`]).
+        let rec = match self.live(id) {
+            Some(live) => Some(live.snapshot().job.clone()),
+            None => self.inner.store.get(id).await?,
+        };
+        let Some(rec) = rec else {
             return Ok(DeleteOutcome::NotFound);
         };
         if !rec.state.is_finished() {
@@ -1003,20 +1027,21 @@ impl Jobs {
             drop(live);
             let _ = settled.wait_for(|s| *s).await;
         }
-        match self.inner.store.delete_finished(id).await {
-            Ok(deleted) => {
-                self.inner.wrote("deleting a job");
-                Ok(if deleted {
-                    DeleteOutcome::Deleted
-                } else {
-                    DeleteOutcome::NotFound
-                })
-            }
-            Err(e) => {
-                self.inner.write_failed("deleting a job", &e);
-                Err(e)
-            }
+        Ok(if self.remove_finished(id).await? {
+            DeleteOutcome::Deleted
+        } else {
+            DeleteOutcome::NotFound
+        })
+    }
+
+    /// Removes a finished job's files and record; whether there was one to remove.
+    async fn remove_finished(&self, id: Uuid) -> Result<bool, StoreError> {
+        let removed = self.inner.store.delete_finished(id).await;
+        match &removed {
+            Ok(_) => self.inner.wrote("deleting a job"),
+            Err(e) => self.inner.write_failed("deleting a job", e),
         }
+        removed
     }
 
     /// The first step of [`Self::shutdown`], at once when the stop is asked (not after
