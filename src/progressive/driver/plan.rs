@@ -100,6 +100,10 @@ impl Plan {
         classes: &[TriangleClass],
         samples_per_pixel: u32,
     ) -> bool {
+        // Early in a render almost every pixel is open: stop collecting as soon as the
+        // rest is dearer than an iteration, instead of listing the whole image each time.
+        let affordable = (ITERATION_COST_IN_SAMPLES * samples.n as f64
+            / f64::from(samples_per_pixel.max(1))) as usize;
         let rest: Vec<usize> = classes
             .iter()
             .enumerate()
@@ -107,9 +111,9 @@ impl Plan {
             .flat_map(|(t, _)| mesh.raster.pixels_of(t))
             .map(|&i| i as usize)
             .filter(|&i| !samples.traced[i])
+            .take(affordable + 1)
             .collect();
-        let cost = rest.len() as f64 * f64::from(samples_per_pixel.max(1));
-        if rest.is_empty() || cost > ITERATION_COST_IN_SAMPLES * samples.n as f64 {
+        if rest.is_empty() || rest.len() > affordable {
             return false;
         }
         self.work = rest;
