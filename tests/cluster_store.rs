@@ -119,6 +119,32 @@ async fn concurrent_claims_take_each_job_once() {
     }
 }
 
+/// A claimer reads its clock before its connection is free, so the job it gets may have been
+/// created after that reading (another node's insert, or a slow pool): the job still never
+/// starts before it was created.
+#[tokio::test]
+async fn a_job_never_starts_before_it_was_created() {
+    use sqlx::Connection;
+    let url = common::fresh_pg_database().await;
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::connect(&Database::Postgres(url.clone()), dir.path())
+        .await
+        .unwrap();
+    let id = insert(&store, "late-created").await;
+    let future = "2999-01-01T00:00:00.000Z";
+    let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
+    sqlx::query("UPDATE jobs SET created_at = $1 WHERE id = $2")
+        .bind(future)
+        .bind(id.to_string())
+        .execute(&mut db)
+        .await
+        .unwrap();
+    let claim = store.claim(Some("w"), LEASE).await.unwrap().unwrap();
+    assert_eq!(claim.started_at, future);
+    let record = store.get(id).await.unwrap().unwrap();
+    assert_eq!(record.started_at.as_deref(), Some(future));
+}
+
 #[tokio::test]
 async fn a_write_with_a_stale_attempt_token_is_refused() {
     for (store, _dir) in stores().await {

@@ -420,11 +420,14 @@ async function main() {
     await page.waitForSelector("#warnings.visible");
     const warned = await page.textContent("#warnings");
     check(/objects\[2\]/.test(warned) && /faces away/.test(warned), "the lamp facing away is warned about (" + warned.slice(0, 70) + "…)");
-    await page.waitForFunction(() => {
+    // Each frame swaps the image's source, so its size is read in the same poll that sees it
+    // loaded: a later read may catch the next frame still loading (0 × 0).
+    const wdims = await (await page.waitForFunction((previous) => {
       const i = document.querySelector("#frame-img");
-      return i.complete && i.naturalWidth > 0 && Number(i.dataset.frames) > 0;
-    }, null, { timeout: T(120) });
-    const wdims = await page.$eval("#frame-img", (i) => [i.naturalWidth, i.naturalHeight]);
+      const mine = document.querySelector("#job-id").textContent !== previous;
+      return mine && i.complete && i.naturalWidth > 0 && Number(i.dataset.frames) > 0
+        && [i.naturalWidth, i.naturalHeight];
+    }, jobId, { timeout: T(120) })).jsonValue();
     check(wdims[0] === 120 && wdims[1] === 90, "a width-only override keeps the aspect (" + wdims.join("x") + ")");
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-warning.png"), fullPage: true });
     await page.setViewportSize({ width: 390, height: 844 });

@@ -53,6 +53,12 @@ pub struct Reaped {
     pub cancelled: u64,
 }
 
+/// The claim's `started_at`: the claimer's clock (`$1`), but never before the job's
+/// `created_at`. The claimer reads its clock before its connection is free, and the job it
+/// gets may have been inserted in that gap; both are fixed-width RFC 3339, so text order is
+/// time order.
+const NOT_BEFORE_CREATION: &str = "CASE WHEN created_at > $1 THEN created_at ELSE $1 END";
+
 impl Store {
     /// The database's clock in milliseconds since the Unix epoch, as SQL.
     fn now_ms(&self) -> &'static str {
@@ -77,15 +83,16 @@ impl Store {
         let started = now_rfc3339();
         let token = LeaseToken(Uuid::now_v7());
         let set = format!(
-            "state = 'running', started_at = $1, progress = NULL, attempts = attempts + 1, worker = $2, lease_token = $3, lease_expires_at = {} + $4",
+            "state = 'running', started_at = {}, progress = NULL, attempts = attempts + 1, worker = $2, lease_token = $3, lease_expires_at = {} + $4",
+            NOT_BEFORE_CREATION,
             self.now_ms()
         );
         let lease_ms = i64::try_from(lease.as_millis()).unwrap_or(i64::MAX / 2);
-        let row: Option<(String, i64)> = match &self.pool {
+        let row: Option<(String, i64, String)> = match &self.pool {
             Pool::Postgres(p) => {
                 let q = format!(
                     "WITH next AS (SELECT id FROM jobs WHERE state = 'queued' AND cancel_requested = 0 ORDER BY id LIMIT 1 FOR UPDATE SKIP LOCKED) \
-                     UPDATE jobs SET {} FROM next WHERE jobs.id = next.id RETURNING jobs.id, jobs.attempts",
+                     UPDATE jobs SET {} FROM next WHERE jobs.id = next.id RETURNING jobs.id, jobs.attempts, jobs.started_at",
                     set.replace("attempts = attempts", "attempts = jobs.attempts")
                 );
                 sqlx::query_as(&q)
@@ -99,7 +106,7 @@ impl Store {
             Pool::Sqlite(p) => {
                 let mut tx = p.begin_with("BEGIN IMMEDIATE").await?;
                 let q = format!(
-                    "UPDATE jobs SET {set} WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND cancel_requested = 0 ORDER BY id LIMIT 1) RETURNING id, attempts"
+                    "UPDATE jobs SET {set} WHERE id = (SELECT id FROM jobs WHERE state = 'queued' AND cancel_requested = 0 ORDER BY id LIMIT 1) RETURNING id, attempts, started_at"
                 );
                 let row = sqlx::query_as(&q)
                     .bind(&started)
@@ -112,7 +119,7 @@ impl Store {
                 row
             }
         };
-        let Some((id, attempts)) = row else {
+        let Some((id, attempts, started)) = row else {
             return Ok(None);
         };
         let id = Uuid::parse_str(&id)
