@@ -72,6 +72,8 @@ fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64) {
                 "finishing": eta == Eta::Finishing, "iteration": f.iteration,
                 "preview": f.preview, "last": f.last, "t0": scene.progressive.t0,
                 "pixel_fraction": f.stats.pixel_fraction,
+                "spp": scene.render.samples_per_pixel,
+                "pixels": u64::from(f.stats.width) * u64::from(f.stats.height),
                 "it": f.stats.per_iteration.last(),
             });
             writeln!(out, "{line}").expect("trace written");

@@ -27,8 +27,10 @@
 //!
 //! The answer is a range, never a bare number: the fit's confidence (R² shrunk by the
 //! number of points, `R² · n / (n + 2)`, so two points never claim certainty) widens it.
-//! When the mean distance is predicted below `t0` already (one iteration left) the answer is
-//! [`Eta::Finishing`], so a running render never reads "0 ms left".
+//! When the mean distance is predicted below `t0` already (one iteration left), or the loop
+//! has planned its last iteration (it traces every open pixel at once,
+//! [`IterationStats::finishing`](super::IterationStats)), the answer is [`Eta::Finishing`],
+//! so a running render never reads "0 ms left".
 
 use super::Frame;
 
@@ -177,6 +179,15 @@ impl EtaTracker {
         if frame.last {
             return Eta::Done;
         }
+        if frame
+            .stats
+            .per_iteration
+            .last()
+            .is_some_and(|s| s.finishing)
+        {
+            // The loop has planned its last iteration: it traces what is left and ends.
+            return Eta::Finishing;
+        }
         if self.t0 <= 0.0 {
             let f = frame.stats.pixel_fraction;
             if f > 0.0 && f < 1.0 {
@@ -282,6 +293,19 @@ mod tests {
 
     fn frame(iteration: u32, d: f64, last: bool) -> Frame {
         Frame::fixture(iteration, d, last)
+    }
+
+    #[test]
+    fn says_finishing_once_the_loop_plans_its_last_iteration() {
+        // A distance far above t0 would predict many iterations; the plan knows better.
+        let mut t = EtaTracker::new(1.0, 64);
+        t.update(&frame(0, 40.0, false), 100.0);
+        let mut f = frame(1, 30.0, false);
+        assert!(matches!(t.update(&f, 200.0), Eta::Left { .. }));
+        let mut t = EtaTracker::new(1.0, 64);
+        t.update(&frame(0, 40.0, false), 100.0);
+        f.stats.per_iteration[0].finishing = true;
+        assert_eq!(t.update(&f, 200.0), Eta::Finishing);
     }
 
     #[test]

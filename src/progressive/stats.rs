@@ -14,6 +14,17 @@ pub struct IterationStats {
     pub triangles_final: u64,
     pub triangles_smooth: u64,
     pub triangles_complex: u64,
+    /// Untraced pixels of the triangles this iteration left open (not final): what the loop
+    /// may still trace. The render ends once tracing them all is cheaper than an iteration.
+    #[serde(default)]
+    pub open_pixels: u64,
+    /// Pixels the next iteration traces (0 when this one ends the render).
+    #[serde(default)]
+    pub planned_pixels: u64,
+    /// The next iteration traces every untraced pixel left open and ends the render
+    /// (stop reason `traced_rest`).
+    #[serde(default)]
+    pub finishing: bool,
 }
 
 /// The final (or running) statistics of a render. Field names are the contract.

@@ -206,6 +206,11 @@ pub fn run<O: PixelOracle>(
                 Stop::AllFinal if finished => Stop::TracedRest,
                 stop => stop,
             });
+        r.it.open_pixels = open_pixels(&r.px, &mesh.raster, &c.classes);
+        if stop.is_none() {
+            r.it.planned_pixels = plan.work.len() as u64;
+            r.it.finishing = finishing;
+        }
         // 4. Emit the frame.
         let frame = r.frame(iter, cur, c, &mesh.raster, classifier.t1(), stop, &ids);
         on_frame(&frame);
@@ -551,6 +556,22 @@ impl<'a, O: PixelOracle> Run<'a, O> {
 }
 
 /// Triangles per class: final, smooth, complex.
+/// Untraced pixels of the triangles not final ([`IterationStats::open_pixels`]).
+fn open_pixels(samples: &SampleSet, raster: &Raster, classes: &[TriangleClass]) -> u64 {
+    classes
+        .iter()
+        .enumerate()
+        .filter(|(_, &c)| c != TriangleClass::Final)
+        .map(|(t, _)| {
+            let pixels = raster.pixels_of(t);
+            pixels
+                .iter()
+                .filter(|&&i| !samples.traced[i as usize])
+                .count() as u64
+        })
+        .sum()
+}
+
 fn counts(classes: &[TriangleClass]) -> [u64; 3] {
     let mut n = [0u64; 3];
     for c in classes {
@@ -828,6 +849,17 @@ mod tests {
             f.stats.pixels_traced < 600,
             "the final right half is not traced"
         );
+        // The iteration before the last said so, and planned exactly what the last traced:
+        // every untraced pixel it left open.
+        let its = &f.stats.per_iteration;
+        let (before, last) = (&its[its.len() - 2], &its[its.len() - 1]);
+        assert!(before.finishing && !last.finishing, "{its:?}");
+        assert_eq!(before.planned_pixels, last.pixels_traced);
+        assert_eq!(before.open_pixels, before.planned_pixels);
+        assert_eq!((last.open_pixels, last.planned_pixels), (0, 0));
+        assert!(its[..its.len() - 2]
+            .iter()
+            .all(|i| !i.finishing && i.open_pixels > 0));
     }
 
     /// Object 0 left of x = 15, object 1 right of it; column 15's footprint spans both and
