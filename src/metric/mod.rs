@@ -122,7 +122,7 @@ const MIN_SPLIT: u32 = 8;
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
 ///
-/// The quad-tree ([`block_map_sparse`]) is bit-identical to the plain transcription of
+/// The quad-tree (without the dense fallback) is bit-identical to the plain transcription of
 /// §3.2 (`reference.rs`, a test-only oracle; the unit tests compare them on noisy pairs)
 /// but cheaper on progressive frames, where every traced pixel is a seed and the tree goes
 /// deep. What changed, all without touching the sampling order
@@ -143,19 +143,6 @@ pub fn block_map(
     params: &MetricParams,
 ) -> DistanceMap {
     quad_tree(model, a, b, seeds, params, DENSE_SHARE)
-}
-
-/// [`block_map`] without its dense fallback: the quad-tree of vision-model.md §3 however
-/// many pixels it evaluates (what the tests compare with the naive reference algorithm).
-#[must_use]
-pub fn block_map_sparse(
-    model: &VisionModel,
-    a: &ContrastStack,
-    b: &ContrastStack,
-    seeds: &[PixelCoord],
-    params: &MetricParams,
-) -> DistanceMap {
-    quad_tree(model, a, b, seeds, params, f64::INFINITY)
 }
 
 fn quad_tree(

@@ -1,6 +1,6 @@
-//! Unit tests of the quad-tree internals (vision-model.md §3.2) and of its bit-identity
-//! with the plain transcription (reference.rs); behaviour tests are in
-//! tests/vision_metric.rs.
+//! Unit tests of the quad-tree internals (vision-model.md §3.2), of its bit-identity with
+//! the plain transcription (reference.rs) and of the dense fallback; behaviour tests are
+//! in tests/vision_metric.rs.
 use super::reference::split;
 use super::*;
 use crate::raster::{LinearImage, Rgb};
@@ -113,6 +113,17 @@ fn noisy(img: &LinearImage, amp: f32, seed: u64, mask: impl Fn(u32, u32) -> bool
     })
 }
 
+/// The quad-tree without [`block_map`]'s dense fallback, however many pixels it evaluates.
+fn sparse(
+    model: &VisionModel,
+    a: &ContrastStack,
+    b: &ContrastStack,
+    seeds: &[PixelCoord],
+    params: &MetricParams,
+) -> DistanceMap {
+    quad_tree(model, a, b, seeds, params, f64::INFINITY)
+}
+
 fn stacks(m: &VisionModel, a: &LinearImage, b: &LinearImage) -> (ContrastStack, ContrastStack) {
     (m.decompose(a).unwrap(), m.decompose(b).unwrap())
 }
@@ -162,7 +173,7 @@ fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
                     epsilon,
                     seed,
                 };
-                let got = block_map_sparse(&m, &sa, &sb, seeds, &p);
+                let got = sparse(&m, &sa, &sb, seeds, &p);
                 let want = reference::block_map_reference(&m, &sa, &sb, seeds, &p);
                 let what = format!("{w}x{h}, {} seeds, {p:?}", seeds.len());
                 assert_same(&got, &want, &what);
@@ -185,4 +196,41 @@ fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
     let bm = block_map(&m, &sa, &sb, &[], &p);
     assert!(bm.leaves.len() > 20, "{} leaves", bm.leaves.len());
     assert!(bm.leaves.iter().any(|l| l.width < 8 && l.height < 8));
+}
+
+#[test]
+fn a_tree_that_would_evaluate_most_pixels_evaluates_them_all_exactly() {
+    let (w, h) = (256, 256);
+    let m = model(w, h);
+    let a = noisy(&textured(w, h), 0.4, 4, |_, _| true);
+    let b = noisy(&textured(w, h), 0.4, 5, |_, _| true);
+    let (sa, sb) = stacks(&m, &a, &b);
+    // A strict homogeneity test on a noisy pair keeps every cell splitting.
+    let p = MetricParams {
+        homogeneity: 0.95,
+        epsilon: 0.3,
+        seed: 99,
+    };
+    let tree = sparse(&m, &sa, &sb, &[], &p);
+    assert!(
+        tree.pixels_evaluated as f64 > DENSE_SHARE * f64::from(w * h),
+        "the pair must be noisy enough: {}",
+        tree.pixels_evaluated
+    );
+    let bm = block_map(&m, &sa, &sb, &[], &p);
+    let held: usize = bm.leaves.iter().map(|l| l.samples as usize).sum();
+    assert_eq!(held, bm.pixels_evaluated, "nothing is evaluated twice");
+    let full = m.full_map(&sa, &sb);
+    let mut dense = 0;
+    for l in &bm.leaves {
+        if u64::from(l.samples) == u64::from(l.width * l.height) {
+            dense += usize::from(l.width * l.height > 1);
+            for y in l.y..l.y + l.height {
+                for x in l.x..l.x + l.width {
+                    assert_eq!(bm.map.get(x, y), full.get(x, y), "exact at ({x}, {y})");
+                }
+            }
+        }
+    }
+    assert!(dense > 0, "the rest was evaluated densely");
 }
