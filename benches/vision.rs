@@ -10,16 +10,15 @@
 //! medians are about half of those on an idle machine.
 //!
 //! Also the block map between successive progressive frames of
-//! scenes/spheres-rough.json (320×240, all traced pixels as seeds), optimised versus the
-//! plain transcription of §3.2 (`metric::reference`) in the same run, outputs asserted
-//! bit-identical. `GLIMPSE_VISION_BENCH_ONLY=progressive` runs only that case;
+//! scenes/spheres-rough.json (320×240, all traced pixels as seeds; its bit-identity with
+//! the plain transcription of §3.2 is a unit test in src/metric/tests.rs).
+//! `GLIMPSE_VISION_BENCH_ONLY=progressive` runs only that case;
 //! `GLIMPSE_VISION_BENCH_KERNEL=1` adds a kernel-only diagnostic (scattered, contiguous
 //! and traced pixel sets).
 //!
-//! Each 512² pair also times the plain two-pass decomposition, interleaved, and
-//! prints the speed ratio both ways. `GLIMPSE_VISION_BENCH_ONLY=decompose` times only the
-//! decomposition of pair 1 on every pyramid path the CPU runs (stacks asserted bitwise
-//! identical); `GLIMPSE_VISION_BENCH_PATH=<substring>` keeps one path (for `perf record`).
+//! `GLIMPSE_VISION_BENCH_ONLY=decompose` times only the decomposition of pair 1 on every
+//! pyramid path the CPU runs (stacks asserted bitwise identical);
+//! `GLIMPSE_VISION_BENCH_PATH=<substring>` keeps one path (for `perf record`).
 
 use criterion::black_box;
 use glimpse::metric::{self, MetricParams};
@@ -125,8 +124,8 @@ fn main() {
 }
 
 /// Decomposition of the 512² pair alone (`GLIMPSE_VISION_BENCH_ONLY=decompose`, also
-/// for profiling the pyramid): every pyramid path the CPU runs, interleaved run by run,
-/// stacks asserted bitwise identical to the plain two-pass AVX2 path.
+/// for profiling the pyramid): the row loops of every instruction set the CPU runs,
+/// interleaved run by run, stacks asserted bitwise identical to the default path's.
 fn decompose_paths() {
     use glimpse::vision::{Isa, RowPath};
     let a = textured(512, 512);
@@ -144,25 +143,15 @@ fn decompose_paths() {
         .filter(|&n| n > 0)
         .unwrap_or(11);
     let only = std::env::var("GLIMPSE_VISION_BENCH_PATH").ok();
-    let mut paths: Vec<(String, RowPath)> =
-        vec![("two-pass avx2 (plain)".into(), RowPath::two_pass_avx2())];
-    for isa in Isa::available() {
-        paths.push((
-            format!("fused {isa:?}"),
-            RowPath {
-                isa,
-                fused: true,
-                band_rows: 0,
-            },
-        ));
-    }
+    let mut paths: Vec<(String, RowPath)> = Isa::available()
+        .into_iter()
+        .map(|isa| (format!("{isa:?}"), RowPath { isa, band_rows: 0 }))
+        .collect();
     if let Some(o) = &only {
         // Profiling one path: GLIMPSE_VISION_BENCH_PATH=a substring of its name.
         paths.retain(|(n, _)| n.contains(o.as_str()));
     }
-    let want = model
-        .decompose_with(&a, RowPath::two_pass_avx2())
-        .expect("finite");
+    let want = model.decompose(&a).expect("finite");
     // One model (so one buffer pool) per path, as each would run alone.
     let models: Vec<VisionModel> = paths
         .iter()
@@ -188,11 +177,12 @@ fn decompose_paths() {
         "== decompose both 512x512 images, {runs} runs, {} rayon threads",
         rayon_threads()
     );
+    // Speed relative to the first (narrowest) path listed.
     let base = median(t[0].clone());
     for (k, (name, _)) in paths.iter().enumerate() {
         let m = median(t[k].clone());
         println!(
-            "  {name:26} median {m:6.2} ms, fastest {:6.2} ms, CPU {:5.2} ms/run, {:.2}x",
+            "  {name:10} median {m:6.2} ms, fastest {:6.2} ms, CPU {:5.2} ms/run, {:.2}x",
             min(&t[k]),
             c[k] / runs as f64,
             base / m
@@ -206,8 +196,7 @@ fn rayon_threads() -> usize {
 
 /// `block_map` between two successive progressive frames of
 /// scenes/spheres-rough.json (320×240), seeded with every traced pixel of the later frame
-/// (what `VisionJudge::distance` passes), optimised versus the plain transcription in
-/// `metric::reference`, interleaved in one run, outputs checked bit-identical.
+/// (what `VisionJudge::distance` passes).
 /// `GLIMPSE_VISION_BENCH_ONLY=progressive` skips the 512² pairs (profiling).
 fn progressive_frames() {
     use glimpse::cancel::CancelToken;
@@ -261,7 +250,7 @@ fn progressive_frames() {
     let picks: Vec<usize> = (0..n.saturating_sub(1))
         .filter(|&k| frames[k].0.pixels() != frames[k + 1].0.pixels())
         .collect();
-    let (mut all_old, mut all_new) = (0.0, 0.0);
+    let mut all = 0.0;
     for k in picks {
         if k + 1 >= n {
             continue;
@@ -285,32 +274,18 @@ fn progressive_frames() {
             epsilon: scene.progressive.epsilon,
             seed: 0x5eed ^ k as u64,
         };
-        let (mut t_old, mut t_new) = (Vec::new(), Vec::new());
-        let (mut c_old, mut c_new) = (0.0, 0.0);
+        let (mut t_new, mut c_new) = (Vec::new(), 0.0);
         let mut out = None;
         for _ in 0..runs {
-            let (t, c) = (Instant::now(), cpu_ms());
-            let r = metric::reference::block_map_reference(&model, &sa, &sb, seeds, &params);
-            t_old.push(t.elapsed().as_secs_f64() * 1e3);
-            c_old += cpu_ms() - c;
             let (t, c) = (Instant::now(), cpu_ms());
             let m = metric::block_map(&model, &sa, &sb, seeds, &params);
             t_new.push(t.elapsed().as_secs_f64() * 1e3);
             c_new += cpu_ms() - c;
-            let same = r.pixels_evaluated == m.pixels_evaluated
-                && r.leaves == m.leaves
-                && r.map
-                    .pixels()
-                    .iter()
-                    .zip(m.map.pixels())
-                    .all(|(p, q)| p.to_bits() == q.to_bits());
-            assert!(same, "block_map differs from the reference (pair {k})");
             out = Some(black_box(m));
         }
         let m = out.expect("ran");
-        let (old, new) = (median(t_old.clone()), median(t_new.clone()));
-        all_old += old;
-        all_new += new;
+        let new = median(t_new.clone());
+        all += new;
         let r = runs as f64;
         println!(
             "  pair {k}->{}: {} seeds ({:.1} %), {} evaluated ({:.1} %), {} leaves",
@@ -322,19 +297,16 @@ fn progressive_frames() {
             m.leaves.len()
         );
         println!(
-            "    block map  reference {old:7.2} ms (fastest {:.2}, CPU {:.1})   optimised {new:7.2} ms (fastest {:.2}, CPU {:.1})   {:.2}x",
-            min(&t_old),
-            c_old / r,
+            "    block map {new:7.2} ms (fastest {:.2}, CPU {:.1})",
             min(&t_new),
             c_new / r,
-            old / new.max(1e-9)
         );
     }
     if std::env::var("GLIMPSE_VISION_BENCH_KERNEL").is_ok() {
         let k = (n / 2).min(n.saturating_sub(2));
         kernel_locality(&model, &frames[k].0, &frames[k + 1].0, &frames[k + 1].1);
     }
-    println!("  sum of medians: reference {all_old:.2} ms, optimised {all_new:.2} ms (outputs bit-identical)");
+    println!("  sum of medians: {all:.2} ms");
 }
 
 fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
@@ -356,37 +328,14 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
         .unwrap_or(11);
     let (mut t_dec, mut t_full, mut t_adapt) = (Vec::new(), Vec::new(), Vec::new());
     let (mut c_dec, mut c_full, mut c_adapt) = (0.0, 0.0, 0.0);
-    // The plain two-pass decomposition, interleaved, for the before/after.
-    let (mut t_old, mut c_old) = (Vec::new(), 0.0);
     let mut full_mean = 0.0;
     let mut adapt = None;
-    // The plain path gets its own model, so its own buffer pool: sharing one pool, the
-    // two paths' buffers (25) overflowed it (19 kept) and the old path paid fresh
-    // allocations and page faults it never pays alone (measured: a spurious 1.6–2×).
-    let old_model = VisionModel::new(display, w, h);
     for i in 0..runs {
-        // The plain path and the current one alternate which goes first (the second
-        // finds the images in cache), so neither is favoured.
-        let mut time_old = || {
-            let (t, c) = (Instant::now(), cpu_ms());
-            let old = glimpse::vision::RowPath::two_pass_avx2();
-            let oa = old_model.decompose_with(a, old).expect("finite");
-            let ob = old_model.decompose_with(b, old).expect("finite");
-            t_old.push(t.elapsed().as_secs_f64() * 1e3);
-            c_old += cpu_ms() - c;
-            black_box((&oa, &ob));
-        };
-        if i % 2 == 0 {
-            time_old();
-        }
         let (t, c) = (Instant::now(), cpu_ms());
         let sa = model.decompose(a).expect("finite");
         let sb = model.decompose(b).expect("finite");
         t_dec.push(t.elapsed().as_secs_f64() * 1e3);
         c_dec += cpu_ms() - c;
-        if i % 2 == 1 {
-            time_old();
-        }
         let (t, c) = (Instant::now(), cpu_ms());
         let f = metric::full_map(&model, &sa, &sb);
         t_full.push(t.elapsed().as_secs_f64() * 1e3);
@@ -412,16 +361,10 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     let adapt = adapt.expect("ran");
     let (dmin, fmin, amin) = (min(&t_dec), min(&t_full), min(&t_adapt));
     let (dec, full, ad) = (median(t_dec), median(t_full), median(t_adapt));
-    let dec_old = median(t_old);
     let px = f64::from(w * h);
     println!("== {name}");
     println!("vision bench {w}x{h}, ppd 28, {} bands, {runs} runs (medians), model construction {model_ms:.2} ms", model.bands().len());
-    println!(
-        "  decompose both images     {dec:8.2} ms   (plain two-pass path {dec_old:.2} ms, {:.2}x; CPU {:.1} vs {:.1} ms/run)",
-        dec_old / dec.max(1e-9),
-        c_dec / runs as f64,
-        c_old / runs as f64
-    );
+    println!("  decompose both images     {dec:8.2} ms");
     println!(
         "  full map (per pixel)      {full:8.2} ms   -> full model total {:8.2} ms",
         dec + full
@@ -442,9 +385,8 @@ fn run_pair(name: &str, a: &LinearImage, b: &LinearImage) {
     );
     println!("  speed ratio map only      {:8.2}x", full / ad);
     println!(
-        "  speed ratio incl. decomp  {:8.2}x   (with the plain two-pass decomposition {:.2}x)",
-        (dec + full) / (dec + ad),
-        (dec_old + full) / (dec_old + ad)
+        "  speed ratio incl. decomp  {:8.2}x",
+        (dec + full) / (dec + ad)
     );
     println!("  mean distance full        {full_mean:8.4} JND");
     println!(

@@ -94,9 +94,6 @@ impl Cell {
     fn area(&self) -> u64 {
         u64::from(self.w) * u64::from(self.h)
     }
-    fn contains(&self, p: PixelCoord) -> bool {
-        p.x >= self.x && p.y >= self.y && p.x - self.x < self.w && p.y - self.y < self.h
-    }
     /// Per-cell RNG stream: (params.seed, cell rectangle) → reproducible and independent of
     /// the order cells are visited in (§3.2 "seed from the cell id").
     fn rng(&self, seed: u64) -> Pcg64Mcg {
@@ -125,9 +122,10 @@ const MIN_SPLIT: u32 = 8;
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
 ///
-/// Bit-identical to [`reference::block_map_reference`] (the plain transcription of §3.2;
-/// tests compare them on noisy pairs) but cheaper on progressive frames, where every traced pixel
-/// is a seed and the tree goes deep. What changed, all without touching the sampling order
+/// The quad-tree (without the dense fallback) is bit-identical to the plain transcription of
+/// §3.2 (`reference.rs`, a test-only oracle; the unit tests compare them on noisy pairs)
+/// but cheaper on progressive frames, where every traced pixel is a seed and the tree goes
+/// deep. What changed, all without touching the sampling order
 /// or the order samples are summed in:
 /// - a split distributes the parent's samples and unused seeds to its children in one pass
 ///   (the old code filtered the whole parent list once per child) and reads the unused
@@ -145,19 +143,6 @@ pub fn block_map(
     params: &MetricParams,
 ) -> DistanceMap {
     quad_tree(model, a, b, seeds, params, DENSE_SHARE)
-}
-
-/// [`block_map`] without its dense fallback: the quad-tree of vision-model.md §3 however
-/// many pixels it evaluates (what the tests compare with the naive reference algorithm).
-#[must_use]
-pub fn block_map_sparse(
-    model: &VisionModel,
-    a: &ContrastStack,
-    b: &ContrastStack,
-    seeds: &[PixelCoord],
-    params: &MetricParams,
-) -> DistanceMap {
-    quad_tree(model, a, b, seeds, params, f64::INFINITY)
 }
 
 fn quad_tree(
@@ -526,53 +511,6 @@ fn split_fast(cell: Cell, used: usize, out: &mut Vec<Cell>, pools: &mut Pools) {
     pools.recycle(cell);
 }
 
-/// Splits each dimension ≥ 8 px into floor/ceil halves (2 or 4 children); children inherit
-/// the parent's samples and unused seeds that fall inside them.
-fn split(cell: Cell, out: &mut Vec<Cell>) {
-    let xs: Vec<(u32, u32)> = if cell.w >= MIN_SPLIT {
-        vec![
-            (cell.x, cell.w / 2),
-            (cell.x + cell.w / 2, cell.w - cell.w / 2),
-        ]
-    } else {
-        vec![(cell.x, cell.w)]
-    };
-    let ys: Vec<(u32, u32)> = if cell.h >= MIN_SPLIT {
-        vec![
-            (cell.y, cell.h / 2),
-            (cell.y + cell.h / 2, cell.h - cell.h / 2),
-        ]
-    } else {
-        vec![(cell.y, cell.h)]
-    };
-    for &(y, ch) in &ys {
-        for &(x, cw) in &xs {
-            let mut c = Cell {
-                x,
-                y,
-                w: cw,
-                h: ch,
-                depth: cell.depth + 1,
-                samples: Vec::new(),
-                seeds: Vec::new(),
-            };
-            c.samples = cell
-                .samples
-                .iter()
-                .copied()
-                .filter(|s| c.contains(s.0))
-                .collect();
-            c.seeds = cell
-                .seeds
-                .iter()
-                .copied()
-                .filter(|&p| c.contains(p))
-                .collect();
-            out.push(c);
-        }
-    }
-}
-
 /// The per-pixel map (every pixel evaluated) in the same form.
 #[must_use]
 pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> DistanceMap {
@@ -585,9 +523,9 @@ pub fn full_map(model: &VisionModel, a: &ContrastStack, b: &ContrastStack) -> Di
     }
 }
 
-/// §3.2 transcribed plainly, the bit-exact oracle of [`block_map`] (tests, benches).
-#[doc(hidden)]
-pub mod reference;
+/// §3.2 transcribed plainly, the bit-exact oracle of [`block_map`] in the tests.
+#[cfg(test)]
+mod reference;
 
 #[cfg(test)]
 mod tests;

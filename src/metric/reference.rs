@@ -1,10 +1,9 @@
 //! The quad-tree of vision-model.md §3.2 transcribed plainly, kept as the oracle the
 //! optimised [`super::block_map`] must match bit for bit (same map, leaves and pixel
-//! count for the same inputs and seed). Tests compare the two;
-//! benches/vision.rs times them side by side. Not for production use: it copies every
-//! cell's samples and seeds at each split.
+//! count for the same inputs and seed); tests.rs compares the two. Test-only: it copies
+//! every cell's samples and seeds at each split.
 
-use super::{samples_for_area, split, Cell, DistanceMap, Leaf, MetricParams, MIN_SPLIT};
+use super::{samples_for_area, Cell, DistanceMap, Leaf, MetricParams, MIN_SPLIT};
 use crate::raster::{Image, PixelCoord};
 use crate::vision::{ContrastStack, VisionModel};
 use rand::Rng;
@@ -16,7 +15,7 @@ use rand::Rng;
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
 #[must_use]
-pub fn block_map_reference(
+pub(super) fn block_map_reference(
     model: &VisionModel,
     a: &ContrastStack,
     b: &ContrastStack,
@@ -209,4 +208,55 @@ pub fn block_map_reference(
         leaves,
         pixels_evaluated: evaluated,
     }
+}
+
+/// Splits each dimension ≥ 8 px into floor/ceil halves (2 or 4 children); children inherit
+/// the parent's samples and unused seeds that fall inside them.
+pub(super) fn split(cell: Cell, out: &mut Vec<Cell>) {
+    let xs: Vec<(u32, u32)> = if cell.w >= MIN_SPLIT {
+        vec![
+            (cell.x, cell.w / 2),
+            (cell.x + cell.w / 2, cell.w - cell.w / 2),
+        ]
+    } else {
+        vec![(cell.x, cell.w)]
+    };
+    let ys: Vec<(u32, u32)> = if cell.h >= MIN_SPLIT {
+        vec![
+            (cell.y, cell.h / 2),
+            (cell.y + cell.h / 2, cell.h - cell.h / 2),
+        ]
+    } else {
+        vec![(cell.y, cell.h)]
+    };
+    for &(y, ch) in &ys {
+        for &(x, cw) in &xs {
+            let mut c = Cell {
+                x,
+                y,
+                w: cw,
+                h: ch,
+                depth: cell.depth + 1,
+                samples: Vec::new(),
+                seeds: Vec::new(),
+            };
+            c.samples = cell
+                .samples
+                .iter()
+                .copied()
+                .filter(|s| contains(&c, s.0))
+                .collect();
+            c.seeds = cell
+                .seeds
+                .iter()
+                .copied()
+                .filter(|&p| contains(&c, p))
+                .collect();
+            out.push(c);
+        }
+    }
+}
+
+fn contains(c: &Cell, p: PixelCoord) -> bool {
+    p.x >= c.x && p.y >= c.y && p.x - c.x < c.w && p.y - c.y < c.h
 }

@@ -1,6 +1,9 @@
-//! Unit tests of the quad-tree internals (vision-model.md §3.2); behaviour tests are in
-//! tests/vision_metric.rs.
+//! Unit tests of the quad-tree internals (vision-model.md §3.2), of its bit-identity with
+//! the plain transcription (reference.rs) and of the dense fallback; behaviour tests are
+//! in tests/vision_metric.rs.
+use super::reference::split;
 use super::*;
+use crate::raster::{LinearImage, Rgb};
 
 fn cell(x: u32, y: u32, w: u32, h: u32) -> Cell {
     Cell {
@@ -58,4 +61,176 @@ fn cell_streams_depend_on_seed_and_cell_only() {
     assert_eq!(a, b);
     assert_ne!(a, c);
     assert_ne!(a, d);
+}
+
+// Inputs of the bit-identity test: a rendered-looking frame and Monte Carlo-like noise.
+
+fn model(w: u32, h: u32) -> VisionModel {
+    let d = crate::vision::DisplayModel {
+        peak_luminance: 100.0,
+        black_luminance: 0.5,
+        exposure: 1.0,
+        pixels_per_degree: 28.0,
+    };
+    VisionModel::new(d, w, h)
+}
+
+fn noise_field(w: u32, h: u32, seed: u64) -> Image<f32> {
+    let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    Image::from_fn(w, h, |_, _| {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+    })
+}
+
+/// Shading, a checker of 16-px squares, fine detail.
+fn textured(w: u32, h: u32) -> LinearImage {
+    Image::from_fn(w, h, |x, y| {
+        let (fx, fy) = (x as f32, y as f32);
+        let shade = 0.25 + 0.2 * fx / w as f32;
+        let checker = if ((x / 16) + (y / 16)) % 2 == 0 {
+            0.15
+        } else {
+            0.0
+        };
+        let v = shade + checker + 0.05 * (fx * 0.9).sin() * (fy * 0.7).cos();
+        Rgb::new(v * 1.1, v, v * 0.8)
+    })
+}
+
+/// Multiplicative noise `amp` where `mask(x, y)`, like Monte Carlo noise in some regions.
+fn noisy(img: &LinearImage, amp: f32, seed: u64, mask: impl Fn(u32, u32) -> bool) -> LinearImage {
+    let n = noise_field(img.width(), img.height(), seed);
+    Image::from_fn(img.width(), img.height(), |x, y| {
+        let p = *img.get(x, y);
+        if mask(x, y) {
+            p * (1.0 + 2.0 * amp * n.get(x, y))
+        } else {
+            p
+        }
+    })
+}
+
+/// The quad-tree without [`block_map`]'s dense fallback, however many pixels it evaluates.
+fn sparse(
+    model: &VisionModel,
+    a: &ContrastStack,
+    b: &ContrastStack,
+    seeds: &[PixelCoord],
+    params: &MetricParams,
+) -> DistanceMap {
+    quad_tree(model, a, b, seeds, params, f64::INFINITY)
+}
+
+fn stacks(m: &VisionModel, a: &LinearImage, b: &LinearImage) -> (ContrastStack, ContrastStack) {
+    (m.decompose(a).unwrap(), m.decompose(b).unwrap())
+}
+
+/// Bit-for-bit comparison of two block maps (map bits, leaves, pixel count).
+fn assert_same(got: &DistanceMap, want: &DistanceMap, what: &str) {
+    assert_eq!(
+        got.pixels_evaluated, want.pixels_evaluated,
+        "{what}: pixels"
+    );
+    assert_eq!(got.leaves, want.leaves, "{what}: leaves");
+    let bits =
+        |m: &DistanceMap| -> Vec<u32> { m.map.pixels().iter().map(|d| d.to_bits()).collect() };
+    assert_eq!(
+        (got.map.width(), got.map.height()),
+        (want.map.width(), want.map.height())
+    );
+    assert!(bits(got) == bits(want), "{what}: map differs");
+}
+
+#[test]
+fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
+    // The optimised quad-tree must give exactly what the plain transcription of §3.2
+    // (reference.rs) gives. A noisy progressive-like pair, seeds as the renderer
+    // passes them (many, raster order, some duplicated and out of range), several metric
+    // seeds and (H, ε) so the tree goes deep, random and dense sampling both occur.
+    let mut cases = 0;
+    for &(w, h) in &[(96u32, 72u32), (1, 1), (1, 37), (45, 2), (9, 130)] {
+        let m = model(w, h);
+        let a = textured(w, h);
+        let b = noisy(&noisy(&a, 0.15, 11, |_, _| true), 0.4, 12, |x, y| {
+            x < w / 2 && y > h / 3
+        });
+        let (sa, sb) = stacks(&m, &a, &b);
+        let every_other: Vec<PixelCoord> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| PixelCoord::new(x, y)))
+            .filter(|p| (p.x * 7 + p.y * 3) % 5 < 2)
+            .collect();
+        let mut messy = every_other.clone();
+        messy.extend(every_other.iter().rev().take(50).copied()); // duplicates
+        messy.push(PixelCoord::new(w, 0)); // out of range
+        messy.push(PixelCoord::new(0, h + 3));
+        for seeds in [&[][..], &every_other[..], &messy[..]] {
+            for (seed, homogeneity, epsilon) in [(1u64, 0.8f32, 1.0f32), (99, 0.95, 0.3)] {
+                let p = MetricParams {
+                    homogeneity,
+                    epsilon,
+                    seed,
+                };
+                let got = sparse(&m, &sa, &sb, seeds, &p);
+                let want = reference::block_map_reference(&m, &sa, &sb, seeds, &p);
+                let what = format!("{w}x{h}, {} seeds, {p:?}", seeds.len());
+                assert_same(&got, &want, &what);
+                cases += 1;
+            }
+        }
+    }
+    assert_eq!(cases, 30);
+    // The big case must really exercise the deep tree (else the comparison proves little).
+    let (w, h) = (96, 72);
+    let m = model(w, h);
+    let a = textured(w, h);
+    let b = noisy(&a, 0.4, 12, |_, _| true);
+    let (sa, sb) = stacks(&m, &a, &b);
+    let p = MetricParams {
+        homogeneity: 0.95,
+        epsilon: 0.3,
+        seed: 99,
+    };
+    let bm = block_map(&m, &sa, &sb, &[], &p);
+    assert!(bm.leaves.len() > 20, "{} leaves", bm.leaves.len());
+    assert!(bm.leaves.iter().any(|l| l.width < 8 && l.height < 8));
+}
+
+#[test]
+fn a_tree_that_would_evaluate_most_pixels_evaluates_them_all_exactly() {
+    let (w, h) = (256, 256);
+    let m = model(w, h);
+    let a = noisy(&textured(w, h), 0.4, 4, |_, _| true);
+    let b = noisy(&textured(w, h), 0.4, 5, |_, _| true);
+    let (sa, sb) = stacks(&m, &a, &b);
+    // A strict homogeneity test on a noisy pair keeps every cell splitting.
+    let p = MetricParams {
+        homogeneity: 0.95,
+        epsilon: 0.3,
+        seed: 99,
+    };
+    let tree = sparse(&m, &sa, &sb, &[], &p);
+    assert!(
+        tree.pixels_evaluated as f64 > DENSE_SHARE * f64::from(w * h),
+        "the pair must be noisy enough: {}",
+        tree.pixels_evaluated
+    );
+    let bm = block_map(&m, &sa, &sb, &[], &p);
+    let held: usize = bm.leaves.iter().map(|l| l.samples as usize).sum();
+    assert_eq!(held, bm.pixels_evaluated, "nothing is evaluated twice");
+    let full = m.full_map(&sa, &sb);
+    let mut dense = 0;
+    for l in &bm.leaves {
+        if u64::from(l.samples) == u64::from(l.width * l.height) {
+            dense += usize::from(l.width * l.height > 1);
+            for y in l.y..l.y + l.height {
+                for x in l.x..l.x + l.width {
+                    assert_eq!(bm.map.get(x, y), full.get(x, y), "exact at ({x}, {y})");
+                }
+            }
+        }
+    }
+    assert!(dense > 0, "the rest was evaluated densely");
 }

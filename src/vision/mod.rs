@@ -296,9 +296,9 @@ impl VisionModel {
         self.decompose_with(img, RowPath::best())
     }
 
-    /// [`Self::decompose`] with an explicit pyramid path (instruction set, fused passes
-    /// or not), clamped to what the CPU runs. Every path gives bitwise the same stack
-    /// (tested); this exists for the bench's before/after and the bit-identity tests.
+    /// [`Self::decompose`] with an explicit pyramid path (instruction set, band height),
+    /// clamped to what the CPU runs. Every path gives bitwise the same stack (tested);
+    /// this exists for the bit-identity tests and the bench's per-path timings.
     #[doc(hidden)]
     pub fn decompose_with(
         &self,
@@ -343,24 +343,15 @@ impl VisionModel {
         };
         // §2.1 (receptor signals) happens inside the first level's horizontal pass.
         let pool = &self.pool;
-        // The two-pass scratch is largest for the first level (at most W·H); the fused
-        // passes need none.
-        let mut tmp = if path.fused {
-            Vec::new()
-        } else {
-            pool.take(img.len())
-        };
         // The first level flags non-finite input while converting it (pyramid.rs
         // `Source::Display`); the exact first pixel is then found by a scan.
         let bad = std::sync::atomic::AtomicBool::new(false);
         let levels = build_levels(
             Source::Display(img, conv, &bad),
             &self.levels,
-            &mut tmp,
             |n| pool.take(n),
             path,
         );
-        pool.give(tmp);
         if bad.load(std::sync::atomic::Ordering::Relaxed) {
             for l in levels {
                 pool.give(l.data);
@@ -465,7 +456,6 @@ fn first_non_finite(px: &[crate::raster::Rgb]) -> Option<usize> {
 fn build_levels(
     input: Source,
     specs: &[LevelSpec],
-    tmp: &mut Vec<P4>,
     buffer: impl Fn(usize) -> Vec<P4>,
     path: RowPath,
 ) -> Vec<Plane> {
@@ -478,7 +468,7 @@ fn build_levels(
         let step = spec.step as usize;
         (w, h) = (w.div_ceil(step), h.div_ceil(step));
         let src = out.last().map_or(input, Source::Plane);
-        let next = build_level(&src, spec, tmp, buffer(w * h), path);
+        let next = build_level(&src, spec, buffer(w * h), path);
         out.push(next);
     }
     out
@@ -506,7 +496,6 @@ fn measure_peak_gain(levels: &[LevelSpec], n: usize, freq: f64) -> f64 {
     let planes = build_levels(
         Source::Plane(&input),
         &levels[..(n + 2).min(levels.len())],
-        &mut Vec::new(),
         |_| Vec::new(),
         RowPath::best(),
     );

@@ -10,15 +10,14 @@
 //! tap order of the plain per-sample loop, so the levels are bitwise those of that loop
 //! (tested against it below).
 //!
-//! The decomposition was most of the adaptive metric's cost, hence more: the default path ([`RowPath::best`]) fuses the two passes per band of output rows (the
-//! horizontal rows live in a small ring, not a whole-level intermediate), reads stored
-//! rows in place instead of copying them into a padded row, and on AVX-512 runs explicit
-//! intrinsic kernels that load each source vector once for several outputs (4 output rows
-//! in the vertical pass, 8 registers of neighbouring samples in the horizontal one). The
-//! finiteness check rides on the first level's conversion. The plain two-pass loops stay
-//! callable ([`RowPath::two_pass_avx2`]) for the bench's before/after and as a test
-//! oracle; every path is compared bit for bit with the per-sample reference below and
-//! with each other in tests.rs.
+//! The decomposition was most of the adaptive metric's cost, hence more: the two passes are
+//! fused per band of output rows (the horizontal rows live in a small ring, not a
+//! whole-level intermediate), stored rows are read in place instead of being copied into a
+//! padded row, and on AVX-512 explicit intrinsic kernels load each source vector once for
+//! several outputs (4 output rows in the vertical pass, 8 registers of neighbouring samples
+//! in the horizontal one). The finiteness check rides on the first level's conversion.
+//! Every path ([`RowPath`]: instruction set, band height) is compared bit for bit with the
+//! per-sample reference below and with each other in tests.rs.
 
 use super::calib::RGB_TO_LMSR;
 use crate::raster::LinearImage;
@@ -126,9 +125,9 @@ pub struct BufferPool {
 }
 
 impl BufferPool {
-    /// At most this many buffers are kept (two stacks of the largest band set plus the
-    /// horizontal-pass scratch); extra ones are freed. The retained memory is about one
-    /// dropped stack (≈ 37 B per image pixel at 5 bands) plus 16 B/px of scratch.
+    /// At most this many buffers are kept (two stacks of the largest band set and one
+    /// more); extra ones are freed. The retained memory is about one dropped stack
+    /// (≈ 37 B per image pixel at 5 bands).
     const KEPT: usize = 2 * (super::MAX_BANDS + 1) + 1;
 
     /// A buffer of length `n` with unspecified (initialised) contents: the smallest kept
@@ -732,22 +731,14 @@ struct RowScratch {
 /// borders, computed tap-major as whole-row multiply-adds (the tap order and so every
 /// rounding is the same as a per-sample loop).
 #[inline(always)]
-fn h_row(
-    src: &Source,
-    y: usize,
-    spec: &LevelSpec,
-    s: &mut RowScratch,
-    out: &mut [P4],
-    isa: Isa,
-    direct: bool,
-) {
+fn h_row(src: &Source, y: usize, spec: &LevelSpec, s: &mut RowScratch, out: &mut [P4], isa: Isa) {
     let (sw, _, _) = src.dims();
     let step = spec.step as usize;
     let lo = spec.kernel.first().map_or(0, |t| t.0);
     let hi = spec.kernel.last().map_or(0, |t| t.0);
     let left = (-lo).max(0) as usize;
     let len = left + sw + hi.max(0) as usize + step;
-    if let (Source::Plane(p), true) = (src, direct) {
+    if let Source::Plane(p) = src {
         // Read a stored level's row in place instead of copying it into the pad
         // (the copy was the largest cost after the multiply-adds).
         let row = &p.data[y * sw..(y + 1) * sw];
@@ -919,24 +910,6 @@ fn h_row_direct(row: &[P4], spec: &LevelSpec, out: &mut [P4], isa: Isa) {
     }
 }
 
-/// Vertical pass of output row `j`: a weighted sum of whole rows of the horizontal-pass
-/// result `tmp` (`sh` rows of `out.len()` samples), mirror borders.
-#[inline(always)]
-fn v_row(tmp: &[P4], sh: usize, j: usize, spec: &LevelSpec, out: &mut [P4]) {
-    let dw = out.len();
-    let step = spec.step as usize;
-    // The two-pass path's loops: the generic `accumulate`, compiled for AVX2 by the wrapper.
-    weighted_sum(
-        out,
-        &spec.kernel,
-        |off| {
-            let sy = mirror((j * step) as i64 + i64::from(off), sh as i64);
-            &tmp[sy * dw..(sy + 1) * dw]
-        },
-        Isa::Portable,
-    );
-}
-
 /// Instruction set of the row loops. Every one runs the same IEEE operations in the same
 /// order (no FMA: Rust never contracts `a * b + c`), so the levels are bitwise identical
 /// whatever the choice (tested below); only the vector width differs. Ordered by width, so
@@ -979,17 +952,13 @@ impl Isa {
     }
 }
 
-/// How [`build_level`] runs: the instruction set and whether the two passes are fused.
+/// How [`build_level`] runs. Each task runs a band of output rows, keeping the
+/// horizontal-pass rows it needs in a ring of `taps` rows (L1/L2-resident) instead of a
+/// whole-level intermediate (a 4 MB write + read per full-resolution level at 512²).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RowPath {
     pub isa: Isa,
-    /// Fused: each task runs a band of output rows, keeping the
-    /// horizontal-pass rows it needs in a ring of `taps` rows (L1/L2-resident) instead of
-    /// a whole-level intermediate (a 4 MB write + read per full-resolution level at 512²).
-    /// Unfused: the whole horizontal pass, then the whole vertical pass (the older code,
-    /// kept for the bench's before/after and as a test oracle).
-    pub fused: bool,
-    /// Output rows per fused band; 0 = chosen from the level size and the thread count.
+    /// Output rows per band; 0 = chosen from the level size and the thread count.
     /// Tests force tiny bands to exercise the halos on small images.
     pub band_rows: usize,
 }
@@ -1000,32 +969,9 @@ impl RowPath {
     pub fn best() -> Self {
         RowPath {
             isa: Isa::best(),
-            fused: true,
             band_rows: 0,
         }
     }
-
-    /// The plain path: two whole-level passes, AVX2 when available.
-    #[must_use]
-    pub fn two_pass_avx2() -> Self {
-        RowPath {
-            isa: Isa::Avx2.min(Isa::best()),
-            fused: false,
-            band_rows: 0,
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn h_row_avx2(src: &Source, y: usize, spec: &LevelSpec, s: &mut RowScratch, out: &mut [P4]) {
-    h_row(src, y, spec, s, out, Isa::Portable, false);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn v_row_avx2(tmp: &[P4], sh: usize, j: usize, spec: &LevelSpec, out: &mut [P4]) {
-    v_row(tmp, sh, j, spec, out);
 }
 
 /// Per-thread buffers of a fused band.
@@ -1042,8 +988,8 @@ struct BandScratch {
 /// `j` reads the horizontal-pass rows of virtual source rows `j·step + off_t`; those are
 /// computed in increasing order into a ring of slots, so each is computed once per
 /// band (plus the band's halo) and read from cache by the vertical pass. A virtual row is
-/// the horizontal pass of source row `mirror(v)`, the very row the two-pass code reads, and
-/// the vertical sum runs over the same rows in the same tap order: bitwise the same level.
+/// the horizontal pass of source row `mirror(v)`, and the vertical sum runs over the rows
+/// §2.2's separable filter reads, in tap order: bitwise the per-sample loop's level.
 // Plain arguments (not a struct) so the `target_feature` wrappers stay one-line forwards.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -1108,7 +1054,7 @@ fn band(
         while next <= base + (kk as i64 - 1) * step + hi {
             let k = slot(next);
             let sy = mirror(next, sh as i64);
-            h_row(src, sy, spec, &mut s.row, &mut s.ring[k..k + dw], isa, true);
+            h_row(src, sy, spec, &mut s.row, &mut s.ring[k..k + dw], isa);
             next += 1;
         }
         let ring = &s.ring;
@@ -1196,19 +1142,11 @@ fn band_avx512(
 }
 
 /// Builds `spec`'s level from `src` (separable: rows, then columns; mirror borders).
-/// `tmp` is scratch for the two-pass horizontal pass (unused when fused), reused across
-/// levels and calls so the big intermediate is not a fresh (page-faulting, zero-filled)
-/// allocation every time. `path` selects the row loops (clamped to what the CPU has).
+/// `path` selects the row loops (clamped to what the CPU has).
 /// `out` becomes the level's storage, whatever its length and contents (every sample is
 /// overwritten).
 #[must_use]
-pub fn build_level(
-    src: &Source,
-    spec: &LevelSpec,
-    tmp: &mut Vec<P4>,
-    out: Vec<P4>,
-    path: RowPath,
-) -> Plane {
+pub fn build_level(src: &Source, spec: &LevelSpec, out: Vec<P4>, path: RowPath) -> Plane {
     let (sw, sh, sdecim) = src.dims();
     let step = spec.step as usize;
     let dw = sw.div_ceil(step);
@@ -1224,11 +1162,7 @@ pub fn build_level(
     } else {
         data.resize(dw * dh, [0f32; 4]);
     }
-    if path.fused {
-        fused_level(src, spec, sh, dw, dh, &mut data, isa, path.band_rows);
-    } else {
-        two_pass_level(src, spec, sh, dw, tmp, &mut data, isa);
-    }
+    fused_level(src, spec, sh, dw, dh, &mut data, isa, path.band_rows);
     Plane {
         w: dw as u32,
         h: dh as u32,
@@ -1294,54 +1228,6 @@ fn fused_level(
 /// core is busy with something else. Not tuned beyond that (measured on a loaded machine).
 const BANDS_PER_THREAD: usize = 2;
 
-/// The two-pass level: the whole horizontal pass into `tmp`, then the whole
-/// vertical pass.
-fn two_pass_level(
-    src: &Source,
-    spec: &LevelSpec,
-    sh: usize,
-    dw: usize,
-    tmp: &mut Vec<P4>,
-    data: &mut [P4],
-    isa: Isa,
-) {
-    let simd = isa >= Isa::Avx2;
-    // Horizontal pass: each source row into `dw` samples. Every sample is overwritten, so
-    // the buffer only grows: shrinking it here (as the first version did) made the next decomposition
-    // zero-fill 4 MB when it took the scratch back from the pool.
-    if tmp.len() < dw * sh {
-        tmp.resize(dw * sh, [0f32; 4]);
-    }
-    let tmp = &mut tmp[..dw * sh];
-    tmp.par_chunks_mut(dw)
-        .with_min_len(min_rows(dw))
-        .enumerate()
-        .for_each_init(RowScratch::default, |scratch, (y, out)| {
-            #[cfg(target_arch = "x86_64")]
-            if simd {
-                // SAFETY: `simd` implies the CPU has AVX2 (`isa` was clamped to
-                // `Isa::best()`), the only requirement of a `target_feature` function.
-                unsafe { h_row_avx2(src, y, spec, scratch, out) };
-                return;
-            }
-            h_row(src, y, spec, scratch, out, Isa::Portable, false);
-        });
-    let tmp = &*tmp;
-    // Vertical pass: each output row is a weighted sum of whole source rows.
-    data.par_chunks_mut(dw)
-        .with_min_len(min_rows(dw))
-        .enumerate()
-        .for_each(|(j, out)| {
-            #[cfg(target_arch = "x86_64")]
-            if simd {
-                // SAFETY: as above.
-                unsafe { v_row_avx2(tmp, sh, j, spec, out) };
-                return;
-            }
-            v_row(tmp, sh, j, spec, out);
-        });
-}
-
 /// Bilinear lookup of a level at full-resolution pixel (x, y) (§2.2): sample position
 /// ((x+½)/D − ½, (y+½)/D − ½); clamping at the border equals the mirror rule for the
 /// half-sample overhang. Non-negative weights keep non-negative signals non-negative.
@@ -1404,13 +1290,7 @@ mod tests {
         };
         let spec = LevelSpec::new(2.5, 1.0, 1, 3.0);
         assert_eq!(spec.decim, 2);
-        let out = build_level(
-            &Source::Plane(&src),
-            &spec,
-            &mut Vec::new(),
-            Vec::new(),
-            RowPath::best(),
-        );
+        let out = build_level(&Source::Plane(&src), &spec, Vec::new(), RowPath::best());
         assert_eq!((out.w, out.h), (7, 4));
         for p in &out.data {
             for (a, b) in p.iter().zip([3.0, 2.0, 1.0, 0.5]) {
@@ -1460,30 +1340,21 @@ mod tests {
         }
     }
 
-    /// Every row-loop path this CPU runs: each instruction set, two passes or fused, with
-    /// automatic bands and with bands of 1, 2, 3 and 5 rows (halos and ring wrap-around on
-    /// small images).
+    /// Every row-loop path this CPU runs: each instruction set, with automatic bands, with
+    /// bands of 1, 2, 3 and 5 rows (halos and ring wrap-around on small images) and with
+    /// one band for the whole level.
     fn all_paths() -> Vec<RowPath> {
         let mut v = Vec::new();
         for isa in Isa::available() {
-            v.push(RowPath {
-                isa,
-                fused: false,
-                band_rows: 0,
-            });
-            for band_rows in [0, 1, 2, 3, 5] {
-                v.push(RowPath {
-                    isa,
-                    fused: true,
-                    band_rows,
-                });
+            for band_rows in [0, 1, 2, 3, 5, usize::MAX] {
+                v.push(RowPath { isa, band_rows });
             }
         }
         v
     }
 
     /// The tap-major row loops (phases for decimation, mirrored pads, every instruction
-    /// set, two-pass or fused bands) give exactly the per-sample reference, including
+    /// set, every band height) give exactly the per-sample reference, including
     /// images narrower than the kernel (mirror period shorter than the pad) and odd sizes
     /// with decimation.
     #[test]
@@ -1533,11 +1404,9 @@ mod tests {
             ] {
                 let want = naive(&src, &spec);
                 for path in all_paths() {
-                    // A recycled buffer with stale contents as the output (as from the pool),
-                    // and a stale, too-short two-pass scratch.
+                    // A recycled buffer with stale contents as the output (as from the pool).
                     let stale = vec![[f32::NAN; 4]; 3 * (w * h) as usize];
-                    let mut tmp = vec![[f32::NAN; 4]; 3];
-                    let got = build_level(&Source::Plane(&src), &spec, &mut tmp, stale, path);
+                    let got = build_level(&Source::Plane(&src), &spec, stale, path);
                     assert_eq!((got.w, got.h, got.decim), (want.w, want.h, want.decim));
                     assert_eq!(got.data, want.data, "{w}x{h} step {} {path:?}", spec.step);
                 }
@@ -1545,8 +1414,8 @@ mod tests {
         }
     }
 
-    /// Level 0 from the image (conversion fused into the first pass) equals level 0 from
-    /// the separately converted receptor plane.
+    /// Level 0 from the image (conversion fused into the first pass) equals the per-sample
+    /// reference's level 0 from the separately converted receptor plane, on every path.
     #[test]
     fn fused_display_conversion_matches_a_converted_plane() {
         use crate::raster::{Image, Rgb};
@@ -1573,15 +1442,10 @@ mod tests {
             data,
         };
         let spec = LevelSpec::new(0.5355, 0.0, 1, 3.0);
-        let b = build_level(
-            &Source::Plane(&plane),
-            &spec,
-            &mut Vec::new(),
-            Vec::new(),
-            RowPath::two_pass_avx2(),
-        );
+        let b = naive(&plane, &spec);
         for path in all_paths() {
-            let a = build_level(&src, &spec, &mut Vec::new(), Vec::new(), path);
+            let a = build_level(&src, &spec, Vec::new(), path);
+            assert_eq!((a.w, a.h, a.decim), (b.w, b.h, b.decim));
             assert_eq!(a.data, b.data, "{path:?}");
         }
     }
