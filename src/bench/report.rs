@@ -2,7 +2,7 @@
 //! tables the README quotes), `results.json` (raw numbers) and `tradeoff.svg` (Q against
 //! time over the t0 sweep, per scene and condition).
 
-use super::judge::{Condition, SweepPoint, Q_TARGET, TIME_TARGET};
+use super::judge::{Condition, SlowBecause, SweepPoint, Q_TARGET, TIME_TARGET};
 use super::objects::{MIN_COVERAGE, MIN_TOLERANCE, REFERENCE_FACTOR};
 use super::peer::PeerResult;
 use super::truth::TRUTH_SPP_FACTOR;
@@ -106,12 +106,12 @@ pub fn conditions_table(conditions: &[Condition]) -> String {
     for c in conditions {
         let _ = writeln!(
             s,
-            "| {} | {:.2} ({:.4} / {:.4}) | {:.2} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
+            "| {} | {:.2} ({:.4} / {:.4}) | {} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
             c.ppd,
             c.q,
             c.progressive_flip,
             c.reference_flip,
-            c.time_ratio,
+            time_cell(c),
             c.pixel_fraction * 100.0,
             yes_no(c.passes()),
             c.floor_ratio,
@@ -188,7 +188,7 @@ fn corpus_table(corpus: &[CorpusResult]) -> String {
             };
             let _ = writeln!(
                 s,
-                "| [{}]({}) | {}x{}, {} | {} | {}{declared} | {:.2} | {:.2} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
+                "| [{}]({}) | {}x{}, {} | {} | {}{declared} | {:.2} | {} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
                 r.scene,
                 r.file,
                 r.width,
@@ -197,7 +197,7 @@ fn corpus_table(corpus: &[CorpusResult]) -> String {
                 r.exposure,
                 c.ppd,
                 c.q,
-                c.time_ratio,
+                time_cell(c),
                 c.pixel_fraction * 100.0,
                 yes_no(c.passes()),
                 c.floor_ratio,
@@ -207,6 +207,19 @@ fn corpus_table(corpus: &[CorpusResult]) -> String {
         }
     }
     s
+}
+
+/// The time ratio, its tracing and loop parts, and why it missed the target if it did.
+fn time_cell(c: &Condition) -> String {
+    let why = match c.slow_because() {
+        None => "",
+        Some(SlowBecause::LoopWork) => ", loop-bound",
+        Some(SlowBecause::Tracing) => ", tracing-bound",
+    };
+    format!(
+        "{:.2} ({:.2} + {:.2}{why})",
+        c.time_ratio, c.tracing_ratio, c.loop_ratio
+    )
 }
 
 /// A t0 sweep is "monotone" when, as t0 grows, the time never rises by more than
@@ -574,7 +587,11 @@ traced with the scene's samples; **the truth** is a render with many more sample
 to noise-free as we can afford; **Q** is how far the progressive picture is from the truth \
 divided by how far the reference is (by FLIP, a measure of visible difference): below 1 the \
 progressive picture is at least as close to the truth as the reference; **× reference time** \
-is the progressive render's time over the reference's (0.5× is twice as fast); **ppd** \
+is the progressive render's time over the reference's (0.5× is twice as fast), split in \
+brackets into tracing (pixels, analysis rays, noise twins) + the loop's own whole-image work \
+(triangulation, reconstruction, shading, the vision model); a render slower than 0.5× is \
+**loop-bound** when the loop's work is the larger part (the scene's pixels are too cheap for \
+skipping most of them to pay for it) and **tracing-bound** otherwise; **ppd** \
 (pixels per degree) is how far away the picture is seen: higher is farther, where small \
 errors are harder to see; **t0** is the knob that trades time for accuracy (a larger t0 \
 stops refining sooner). For both Q and time, lower is better.\n";
@@ -585,12 +602,21 @@ fn in_short(study: &Study) -> String {
         let (n, of) = share(conds, Condition::passes);
         let mut times: Vec<f64> = conds.iter().map(|c| c.time_ratio).collect();
         let mut qs: Vec<f64> = conds.iter().map(|c| c.q).collect();
+        let slow = |why| {
+            conds
+                .iter()
+                .filter(|c| c.slow_because() == Some(why))
+                .count()
+        };
         format!(
             "on {n} of {of} {what} the progressive picture was at least as close to the truth \
              as the reference, in at most {TIME_TARGET}× its time (median {:.2}× the \
-             reference's time, median Q {:.2})",
+             reference's time, median Q {:.2}; of those slower than {TIME_TARGET}×, {} were \
+             loop-bound and {} tracing-bound)",
             median(&mut times),
-            median(&mut qs)
+            median(&mut qs),
+            slow(SlowBecause::LoopWork),
+            slow(SlowBecause::Tracing),
         )
     };
     let mut parts = Vec::new();
