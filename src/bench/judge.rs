@@ -49,11 +49,10 @@ pub struct Condition {
     pub progressive_ms: f64,
     /// Progressive time ÷ reference time (medians of the alternating runs).
     pub time_ratio: f64,
-    /// `time_ratio` split by the progressive run's own statistics: the part spent tracing
-    /// (its pixels, the analysis's primary rays and the noise twins) and the part spent on
-    /// the loop's own work (triangulation, reconstruction, shading, the vision model).
-    pub tracing_ratio: f64,
-    pub loop_ratio: f64,
+    /// What `time_ratio` holds beyond the traced pixels' own share (`pixel_fraction`, what
+    /// they cost the reference): the analysis's primary rays, the noise twins and the loop's
+    /// whole-image work (triangulation, reconstruction, shading, the vision model).
+    pub overhead_ratio: f64,
     pub pixel_fraction: f64,
     /// FLIP(progressive, truth) and FLIP(reference, truth), means.
     pub progressive_flip: f64,
@@ -82,10 +81,10 @@ impl Condition {
     pub fn slow_because(&self) -> Option<SlowBecause> {
         if self.time_ratio <= TIME_TARGET {
             None
-        } else if self.loop_ratio >= self.tracing_ratio {
-            Some(SlowBecause::LoopWork)
+        } else if self.overhead_ratio >= self.pixel_fraction {
+            Some(SlowBecause::Overhead)
         } else {
-            Some(SlowBecause::Tracing)
+            Some(SlowBecause::Pixels)
         }
     }
 
@@ -98,22 +97,11 @@ impl Condition {
 /// Why a progressive render took more than [`TIME_TARGET`] of the reference's time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SlowBecause {
-    /// The loop's whole-image work outweighed its tracing: the scene's pixels are too
-    /// cheap (few samples, simple paths) for skipping most of them to pay for that work.
-    LoopWork,
-    /// Tracing outweighed the loop's work: the picture needed many of its pixels traced.
-    Tracing,
-}
-
-/// `time_ratio` split into its tracing and loop parts by the shares of `stats`.
-fn time_split(time_ratio: f64, stats: &progressive::RenderStats) -> (f64, f64) {
-    let tracing = (stats.trace_ms + stats.analysis_ms).max(0.0);
-    let share = if stats.total_ms > 0.0 {
-        (tracing / stats.total_ms).min(1.0)
-    } else {
-        1.0
-    };
-    (time_ratio * share, time_ratio * (1.0 - share))
+    /// The work beyond the traced pixels outweighed them: the scene's pixels are too cheap
+    /// (few samples, short paths) for skipping most of them to pay for that work.
+    Overhead,
+    /// The traced pixels outweighed the rest: the picture needed many of them.
+    Pixels,
 }
 
 /// The scene at `ppd`: timed, judged, its contact sheet written to
@@ -155,14 +143,12 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
     std::fs::write(&path, png).with_context(|| format!("cannot write {}", path.display()))?;
 
     let time_ratio = progressive_ms / reference_ms;
-    let (tracing_ratio, loop_ratio) = time_split(time_ratio, &prog.stats);
     Ok(Condition {
         ppd,
         reference_ms,
         progressive_ms,
         time_ratio,
-        tracing_ratio,
-        loop_ratio,
+        overhead_ratio: time_ratio - prog.stats.pixel_fraction,
         pixel_fraction: prog.stats.pixel_fraction,
         progressive_flip: prog_score.mean,
         reference_flip,
@@ -271,28 +257,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_time_splits_by_the_runs_shares_and_names_what_made_it_slow() {
-        let stats = progressive::RenderStats {
-            total_ms: 100.0,
-            trace_ms: 30.0,
-            analysis_ms: 10.0,
-            ..Default::default()
-        };
-        let (tracing, looping) = time_split(0.8, &stats);
-        assert!((tracing - 0.32).abs() < 1e-12 && (looping - 0.48).abs() < 1e-12);
-        // A run with no time measured counts as all tracing, never as NaN.
-        assert_eq!(
-            time_split(0.8, &progressive::RenderStats::default()),
-            (0.8, 0.0)
-        );
-
+    fn a_slow_render_says_whether_its_pixels_or_the_rest_made_it_slow() {
         let mut c = Condition {
             ppd: 60.0,
             reference_ms: 100.0,
             progressive_ms: 80.0,
             time_ratio: 0.8,
-            tracing_ratio: tracing,
-            loop_ratio: looping,
+            overhead_ratio: 0.6,
             pixel_fraction: 0.2,
             progressive_flip: 0.1,
             reference_flip: 0.1,
@@ -302,9 +273,9 @@ mod tests {
             worst_object_ratio: 0.0,
             sheet: String::new(),
         };
-        assert_eq!(c.slow_because(), Some(SlowBecause::LoopWork));
-        (c.tracing_ratio, c.loop_ratio) = (0.6, 0.2);
-        assert_eq!(c.slow_because(), Some(SlowBecause::Tracing));
+        assert_eq!(c.slow_because(), Some(SlowBecause::Overhead));
+        (c.pixel_fraction, c.overhead_ratio) = (0.6, 0.2);
+        assert_eq!(c.slow_because(), Some(SlowBecause::Pixels));
         c.time_ratio = TIME_TARGET;
         assert_eq!(c.slow_because(), None);
     }

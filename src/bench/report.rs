@@ -209,16 +209,16 @@ fn corpus_table(corpus: &[CorpusResult]) -> String {
     s
 }
 
-/// The time ratio, its tracing and loop parts, and why it missed the target if it did.
+/// The time ratio as the traced pixels' share + the rest, and why it missed the target.
 fn time_cell(c: &Condition) -> String {
     let why = match c.slow_because() {
         None => "",
-        Some(SlowBecause::LoopWork) => ", loop-bound",
-        Some(SlowBecause::Tracing) => ", tracing-bound",
+        Some(SlowBecause::Overhead) => ", overhead-bound",
+        Some(SlowBecause::Pixels) => ", pixel-bound",
     };
     format!(
         "{:.2} ({:.2} + {:.2}{why})",
-        c.time_ratio, c.tracing_ratio, c.loop_ratio
+        c.time_ratio, c.pixel_fraction, c.overhead_ratio
     )
 }
 
@@ -588,10 +588,11 @@ to noise-free as we can afford; **Q** is how far the progressive picture is from
 divided by how far the reference is (by FLIP, a measure of visible difference): below 1 the \
 progressive picture is at least as close to the truth as the reference; **× reference time** \
 is the progressive render's time over the reference's (0.5× is twice as fast), split in \
-brackets into tracing (pixels, analysis rays, noise twins) + the loop's own whole-image work \
-(triangulation, reconstruction, shading, the vision model); a render slower than 0.5× is \
-**loop-bound** when the loop's work is the larger part (the scene's pixels are too cheap for \
-skipping most of them to pay for it) and **tracing-bound** otherwise; **ppd** \
+brackets into the traced pixels' share (what they cost the reference) + the rest (the \
+analysis's primary rays, the noise twins and the loop's own whole-image work: triangulation, \
+reconstruction, shading, the vision model); a render slower than 0.5× is \
+**overhead-bound** when the rest is the larger part (the scene's pixels are too cheap for \
+skipping most of them to pay for it) and **pixel-bound** otherwise; **ppd** \
 (pixels per degree) is how far away the picture is seen: higher is farther, where small \
 errors are harder to see; **t0** is the knob that trades time for accuracy (a larger t0 \
 stops refining sooner). For both Q and time, lower is better.\n";
@@ -612,11 +613,11 @@ fn in_short(study: &Study) -> String {
             "on {n} of {of} {what} the progressive picture was at least as close to the truth \
              as the reference, in at most {TIME_TARGET}× its time (median {:.2}× the \
              reference's time, median Q {:.2}; of those slower than {TIME_TARGET}×, {} were \
-             loop-bound and {} tracing-bound)",
+             overhead-bound and {} pixel-bound)",
             median(&mut times),
             median(&mut qs),
-            slow(SlowBecause::LoopWork),
-            slow(SlowBecause::Tracing),
+            slow(SlowBecause::Overhead),
+            slow(SlowBecause::Pixels),
         )
     };
     let mut parts = Vec::new();
