@@ -126,6 +126,9 @@ impl<O: PixelOracle> PixelOracle for Twin<'_, O> {
     fn surface_normal(&self, p: PixelCoord) -> glam::Vec3 {
         self.inner.surface_normal(p)
     }
+    fn centre_hit(&self, p: PixelCoord) -> (ObjectId, glam::Vec3) {
+        self.inner.centre_hit(p)
+    }
 }
 
 /// Per pixel, the Monte Carlo noise amplitude of a traced value as the display shows it:

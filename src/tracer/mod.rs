@@ -42,6 +42,11 @@ pub trait PixelOracle: Sync {
     fn surface_normal(&self, _p: PixelCoord) -> glam::Vec3 {
         glam::Vec3::ZERO
     }
+    /// [`Self::object_id`] and [`Self::surface_normal`] together: an oracle that traces
+    /// rays answers both from the one ray through the pixel centre.
+    fn centre_hit(&self, p: PixelCoord) -> (ObjectId, glam::Vec3) {
+        (self.object_id(p), self.surface_normal(p))
+    }
     /// The albedo of the textured Lambertian surface the pixel sees, averaged over its
     /// footprint (up to the 4 [`ALBEDO_TAPS`] camera rays), or `None` where any of them sees
     /// something else (another material, the background). Radiance leaving a Lambertian
@@ -237,15 +242,38 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
     Image::from_vec(w, h, data).expect("size matches by construction")
 }
 
-/// [`PixelOracle::footprint_mixed`] at every pixel of the object-id map `ids`, row-major.
-#[must_use]
-pub fn mixed_map(oracle: &impl PixelOracle, ids: &Image<ObjectId>) -> Vec<bool> {
-    every_pixel(oracle, |p| oracle.footprint_mixed(p, *ids.get(p.x, p.y)))
+/// What the progressive loop knows of every pixel before tracing any (§4.1 and our
+/// extensions): the object-id map, the normals and the mixed footprints.
+pub struct PixelAnalysis {
+    pub ids: Image<ObjectId>,
+    /// [`PixelOracle::surface_normal`], row-major.
+    pub normals: Vec<Vec3>,
+    /// [`PixelOracle::footprint_mixed`] against the pixel's own id, row-major.
+    pub mixed: Vec<bool>,
 }
 
-/// [`PixelOracle::surface_normal`] at every pixel, row-major.
-pub fn normal_map(oracle: &impl PixelOracle) -> Vec<Vec3> {
-    every_pixel(oracle, |p| oracle.surface_normal(p))
+/// [`PixelAnalysis`] in one parallel pass: per pixel the centre ray ([`PixelOracle::centre_hit`])
+/// and the footprint's taps, five camera rays in all.
+#[must_use]
+pub fn analysis_maps(oracle: &impl PixelOracle) -> PixelAnalysis {
+    let (w, h) = oracle.size();
+    let per_pixel = every_pixel(oracle, |p| {
+        let (id, normal) = oracle.centre_hit(p);
+        (id, normal, oracle.footprint_mixed(p, id))
+    });
+    let mut ids = Vec::with_capacity(per_pixel.len());
+    let mut normals = Vec::with_capacity(per_pixel.len());
+    let mut mixed = Vec::with_capacity(per_pixel.len());
+    for (id, normal, m) in per_pixel {
+        ids.push(id);
+        normals.push(normal);
+        mixed.push(m);
+    }
+    PixelAnalysis {
+        ids: Image::from_vec(w, h, ids).expect("size matches by construction"),
+        normals,
+        mixed,
+    }
 }
 
 /// `f` at every pixel of the oracle's image, row-major, in parallel.
@@ -679,15 +707,21 @@ impl PixelOracle for PathTracer {
     }
 
     fn surface_normal(&self, p: PixelCoord) -> Vec3 {
+        self.centre_hit(p).1
+    }
+
+    fn centre_hit(&self, p: PixelCoord) -> (ObjectId, Vec3) {
         let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
-        self.camera_hit(p.x, p.y, d).map_or(Vec3::ZERO, |h| {
-            let n = self.geo.surface(self.camera.origin, d, &h).ns;
-            if n.dot(d) > 0.0 {
-                -n
-            } else {
-                n
-            }
-        })
+        self.camera_hit(p.x, p.y, d)
+            .map_or((BACKGROUND_ID, Vec3::ZERO), |h| {
+                let id = self
+                    .geo
+                    .info
+                    .get(h.prim as usize)
+                    .map_or(BACKGROUND_ID, |i| i.object);
+                let n = self.geo.surface(self.camera.origin, d, &h).ns;
+                (id, if n.dot(d) > 0.0 { -n } else { n })
+            })
     }
 }
 
@@ -745,8 +779,17 @@ mod tests {
     #[test]
     fn a_footprint_is_mixed_exactly_where_its_taps_see_two_objects() {
         let t = PathTracer::new(&checker_floor(false));
-        let ids = object_id_map(&t);
-        let mixed = mixed_map(&t, &ids);
+        let PixelAnalysis {
+            ids,
+            normals,
+            mixed,
+        } = analysis_maps(&t);
+        assert_eq!(ids, object_id_map(&t), "the centre ray is the id map's ray");
+        for (i, n) in normals.iter().enumerate() {
+            let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
+            assert_eq!(*n, t.surface_normal(p), "{p:?}");
+            assert_eq!(ids.pixels()[i], t.object_id(p), "{p:?}");
+        }
         let floor = *ids.get(0, 0);
         let sphere = ids.pixels().iter().position(|&id| id != floor);
         let inside = sphere.map(|i| i + 1).expect("the sphere is in view");

@@ -269,9 +269,9 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     /// (contour pixels of the id map, then uniform ones), as pixel indices.
     fn analyse(&mut self) -> (Arc<Image<ObjectId>>, Vec<usize>) {
         let t = Instant::now();
-        let ids = Arc::new(tracer::object_id_map(self.oracle));
-        self.px.normals = tracer::normal_map(self.oracle);
-        self.px.mixed = tracer::mixed_map(self.oracle, &ids);
+        let maps = tracer::analysis_maps(self.oracle);
+        let ids = Arc::new(maps.ids);
+        (self.px.normals, self.px.mixed) = (maps.normals, maps.mixed);
         let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
         let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
         self.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
