@@ -555,7 +555,6 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     }
 }
 
-/// Triangles per class: final, smooth, complex.
 /// Untraced pixels of the triangles not final ([`IterationStats::open_pixels`]).
 fn open_pixels(samples: &SampleSet, raster: &Raster, classes: &[TriangleClass]) -> u64 {
     classes
@@ -572,6 +571,7 @@ fn open_pixels(samples: &SampleSet, raster: &Raster, classes: &[TriangleClass]) 
         .sum()
 }
 
+/// Triangles per class: final, smooth, complex.
 fn counts(classes: &[TriangleClass]) -> [u64; 3] {
     let mut n = [0u64; 3];
     for c in classes {
