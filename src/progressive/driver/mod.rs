@@ -195,9 +195,16 @@ pub fn run<O: PixelOracle>(
                 &mut contours,
             )
         };
+        r.it.open_pixels = plan::open_pixels(&r.px, &mesh, &c.classes);
         let finishing = !finished
             && !plan.work.is_empty()
-            && plan.finish_if_cheaper(&r.px, &mesh, &c.classes, s.samples_per_pixel);
+            && plan.finish_if_cheaper(
+                &r.px,
+                &mesh,
+                &c.classes,
+                r.it.open_pixels,
+                s.samples_per_pixel,
+            );
         // 3. Stop?
         let stop = r
             .budget
@@ -206,7 +213,6 @@ pub fn run<O: PixelOracle>(
                 Stop::AllFinal if finished => Stop::TracedRest,
                 stop => stop,
             });
-        r.it.open_pixels = open_pixels(&r.px, &mesh.raster, &c.classes);
         if stop.is_none() {
             r.it.planned_pixels = plan.work.len() as u64;
             r.it.finishing = finishing;
@@ -553,22 +559,6 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         self.stats.pixels_traced = self.px.count;
         self.stats.pixel_fraction = self.px.count as f64 / self.px.n.max(1) as f64;
     }
-}
-
-/// Untraced pixels of the triangles not final ([`IterationStats::open_pixels`]).
-fn open_pixels(samples: &SampleSet, raster: &Raster, classes: &[TriangleClass]) -> u64 {
-    classes
-        .iter()
-        .enumerate()
-        .filter(|(_, &c)| c != TriangleClass::Final)
-        .map(|(t, _)| {
-            let pixels = raster.pixels_of(t);
-            pixels
-                .iter()
-                .filter(|&&i| !samples.traced[i as usize])
-                .count() as u64
-        })
-        .sum()
 }
 
 /// Triangles per class: final, smooth, complex.

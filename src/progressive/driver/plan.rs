@@ -92,34 +92,46 @@ impl Plan {
     /// pixel. Near the end the loop traces a handful of pixels per iteration for several
     /// iterations; tracing what is left whole ends it at once, and every pixel it adds is
     /// the reference's own (so the picture can only come closer to it). The rule counts
-    /// samples, not seconds, so a render is the same on any machine at any load.
+    /// samples, not seconds, so a render is the same on any machine at any load. `open` is
+    /// [`open_pixels`] of the same classes, counted once per iteration for the statistics.
     pub(super) fn finish_if_cheaper(
         &mut self,
         samples: &SampleSet,
         mesh: &Mesh,
         classes: &[TriangleClass],
+        open: u64,
         samples_per_pixel: u32,
     ) -> bool {
-        // Early in a render almost every pixel is open: stop collecting as soon as the
-        // rest is dearer than an iteration, instead of listing the whole image each time.
-        let affordable = (ITERATION_COST_IN_SAMPLES * samples.n as f64
-            / f64::from(samples_per_pixel.max(1))) as usize;
-        let rest: Vec<usize> = classes
-            .iter()
-            .enumerate()
-            .filter(|(_, &c)| c != TriangleClass::Final)
-            .flat_map(|(t, _)| mesh.raster.pixels_of(t))
-            .map(|&i| i as usize)
-            .filter(|&i| !samples.traced[i])
-            .take(affordable + 1)
-            .collect();
-        if rest.is_empty() || rest.len() > affordable {
+        let affordable =
+            ITERATION_COST_IN_SAMPLES * samples.n as f64 / f64::from(samples_per_pixel.max(1));
+        if open == 0 || open as f64 > affordable.floor() {
             return false;
         }
-        self.work = rest;
+        self.work = untraced_open(samples, mesh, classes).collect();
         self.complex.clear();
         true
     }
+}
+
+/// Untraced pixels of the triangles not final, by triangle.
+fn untraced_open<'a>(
+    samples: &'a SampleSet,
+    mesh: &'a Mesh,
+    classes: &'a [TriangleClass],
+) -> impl Iterator<Item = usize> + 'a {
+    classes
+        .iter()
+        .enumerate()
+        .filter(|(_, &c)| c != TriangleClass::Final)
+        .flat_map(|(t, _)| mesh.raster.pixels_of(t))
+        .map(|&i| i as usize)
+        .filter(|&i| !samples.traced[i])
+}
+
+/// How many pixels [`Plan::finish_if_cheaper`] would trace: what the loop may still trace
+/// ([`crate::progressive::IterationStats::open_pixels`]).
+pub(super) fn open_pixels(samples: &SampleSet, mesh: &Mesh, classes: &[TriangleClass]) -> u64 {
+    untraced_open(samples, mesh, classes).count() as u64
 }
 
 /// What one iteration of the loop's own work (triangulation, reconstruction, shading and
