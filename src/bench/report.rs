@@ -218,7 +218,9 @@ fn time_cell(c: &Condition) -> String {
     };
     format!(
         "{:.2} ({:.2} + {:.2}{why})",
-        c.time_ratio, c.pixel_fraction, c.overhead_ratio
+        c.time_ratio,
+        c.pixel_fraction,
+        c.overhead_ratio()
     )
 }
 
