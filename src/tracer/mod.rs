@@ -618,7 +618,14 @@ impl PathTracer {
     fn object_at(&self, p: PixelCoord, jitter: glam::Vec2) -> ObjectId {
         let d = self.camera.direction(p.x, p.y, jitter);
         self.camera_hit(p.x, p.y, d)
-            .and_then(|h| self.geo.info.get(h.prim as usize))
+            .map_or(BACKGROUND_ID, |h| self.object_of(&h))
+    }
+
+    /// The object a camera ray's hit belongs to.
+    fn object_of(&self, h: &bvh::Hit) -> ObjectId {
+        self.geo
+            .info
+            .get(h.prim as usize)
             .map_or(BACKGROUND_ID, |i| i.object)
     }
 
@@ -714,11 +721,7 @@ impl PixelOracle for PathTracer {
         let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
         self.camera_hit(p.x, p.y, d)
             .map_or((BACKGROUND_ID, Vec3::ZERO), |h| {
-                let id = self
-                    .geo
-                    .info
-                    .get(h.prim as usize)
-                    .map_or(BACKGROUND_ID, |i| i.object);
+                let id = self.object_of(&h);
                 let n = self.geo.surface(self.camera.origin, d, &h).ns;
                 (id, if n.dot(d) > 0.0 { -n } else { n })
             })
