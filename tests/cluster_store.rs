@@ -125,24 +125,34 @@ async fn concurrent_claims_take_each_job_once() {
 #[tokio::test]
 async fn a_job_never_starts_before_it_was_created() {
     use sqlx::Connection;
+    const FUTURE: &str = "2999-01-01T00:00:00.000Z";
+    const SET: &str = "UPDATE jobs SET created_at = $1 WHERE id = $2";
+    async fn claim_starts_at_creation(store: &Store, id: Uuid) {
+        let claim = store.claim(Some("w"), LEASE).await.unwrap().unwrap();
+        assert_eq!(claim.started_at, FUTURE, "{}", store.backend());
+        let record = store.get(id).await.unwrap().unwrap();
+        assert_eq!(record.started_at.as_deref(), Some(FUTURE));
+    }
+
+    let dir = tempfile::tempdir().unwrap();
+    let sqlite = Store::open(dir.path()).await.unwrap();
+    let id = insert(&sqlite, "late-created").await;
+    let file = format!("sqlite://{}", dir.path().join("glimpse.db").display());
+    let mut db = sqlx::SqliteConnection::connect(&file).await.unwrap();
+    let set = sqlx::query(SET).bind(FUTURE).bind(id.to_string());
+    set.execute(&mut db).await.unwrap();
+    claim_starts_at_creation(&sqlite, id).await;
+
     let url = common::fresh_pg_database().await;
     let dir = tempfile::tempdir().unwrap();
-    let store = Store::connect(&Database::Postgres(url.clone()), dir.path())
+    let pg = Store::connect(&Database::Postgres(url.clone()), dir.path())
         .await
         .unwrap();
-    let id = insert(&store, "late-created").await;
-    let future = "2999-01-01T00:00:00.000Z";
+    let id = insert(&pg, "late-created").await;
     let mut db = sqlx::PgConnection::connect(&url).await.unwrap();
-    sqlx::query("UPDATE jobs SET created_at = $1 WHERE id = $2")
-        .bind(future)
-        .bind(id.to_string())
-        .execute(&mut db)
-        .await
-        .unwrap();
-    let claim = store.claim(Some("w"), LEASE).await.unwrap().unwrap();
-    assert_eq!(claim.started_at, future);
-    let record = store.get(id).await.unwrap().unwrap();
-    assert_eq!(record.started_at.as_deref(), Some(future));
+    let set = sqlx::query(SET).bind(FUTURE).bind(id.to_string());
+    set.execute(&mut db).await.unwrap();
+    claim_starts_at_creation(&pg, id).await;
 }
 
 #[tokio::test]
