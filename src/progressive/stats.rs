@@ -60,9 +60,10 @@ pub struct RenderStats {
     /// "max_pixels", "max_time", "no_triangles" (1-pixel-wide images are traced fully).
     #[serde(default)]
     pub stop_reason: Option<String>,
-    /// Noise twins traced after frame 0 (noise-aware extension of F&P04, see
+    /// Noise twins traced once frame 0 is out (noise-aware extension of F&P04, see
     /// `progressive::noise`): one re-estimate, with an independent seed, of every pixel of
-    /// the first sample set. Their time is in `trace_ms` and `total_ms`, but they are NOT in
+    /// the first sample set; counted from frame 1's statistics on, and timed in iteration
+    /// 1's. Their time is in `trace_ms` and `total_ms`, but they are NOT in
     /// `pixels_traced`/`pixel_fraction`, which count the pixels of the image (a twin never
     /// becomes a pixel of the image). 0 when no twin was traced (Guo, reference, T0 = 0,
     /// compensation off).

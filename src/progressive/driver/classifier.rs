@@ -74,6 +74,26 @@ pub(super) trait Classifier {
         shown: &[Rgb],
         shown_at: &dyn Fn(PixelCoord) -> Rgb,
     ) -> Option<(f64, f64)>;
+
+    /// Whether the oracle discounts noise and has not yet measured it: the loop then
+    /// shades the noise twin of the first sample set and hands it to [`Self::learn_noise`]
+    /// before the first pair of frames is judged.
+    fn wants_noise(&self) -> bool {
+        false
+    }
+
+    /// The distance noise alone makes between `first` (the first frame) and `twin` (the
+    /// same triangulation over independent estimates of the same pixels, `seeds`), and
+    /// the local noise level; the distance map once measured (`None`: no compensation).
+    fn learn_noise(
+        &mut self,
+        _first: &LinearImage,
+        _twin: &LinearImage,
+        _seeds: &[PixelCoord],
+        _level: Option<NoiseLevel>,
+    ) -> Option<&[f32]> {
+        None
+    }
 }
 
 /// What the noise twin of the first sample set measured ([`crate::progressive::noise`]).
@@ -92,6 +112,8 @@ pub(super) struct Perceptual<'j> {
     /// From the scene, or the mean of the first distance map (F&P04 §5).
     pub t1: Option<f64>,
     pub noise: Option<NoiseEstimate>,
+    /// Noise compensation on, and anything can become final (T0 > 0).
+    pub compensates: bool,
     pub exposure: f32,
 }
 
@@ -126,6 +148,24 @@ impl Classifier for Perceptual<'_> {
         _: &dyn Fn(PixelCoord) -> Rgb,
     ) -> Option<(f64, f64)> {
         rupture_direction(contour, shown)
+    }
+
+    fn wants_noise(&self) -> bool {
+        self.compensates && self.noise.is_none()
+    }
+
+    fn learn_noise(
+        &mut self,
+        first: &LinearImage,
+        twin: &LinearImage,
+        seeds: &[PixelCoord],
+        level: Option<NoiseLevel>,
+    ) -> Option<&[f32]> {
+        let n = first.pixels().len();
+        let map = self.judge.noise_distance(first, twin, seeds)?;
+        let map = Some(map).filter(|m| m.len() == n)?.into_vec();
+        self.noise = Some(NoiseEstimate { map, level });
+        self.noise.as_ref().map(|e| &e.map[..])
     }
 }
 

@@ -7,7 +7,8 @@
 //!    frames, or Guo's contrast test);
 //! 2. plan what each class asks for ([`plan`]);
 //! 3. stop, or not ([`budget`]);
-//! 4. emit the frame;
+//! 4. emit the frame (after the first one, the perceptual oracle measures what noise alone
+//!    does to its distance: [`noise_twin`]);
 //! 5. trace the plan, re-triangulate ([`Mesh`]), shade ([`samples`]), and fill the complex
 //!    triangles along their rupture ([`fill`]).
 //!
@@ -27,6 +28,7 @@ mod samples;
 
 pub use budget::Stop;
 pub use judge::{Judge, VisionJudge};
+pub use plan::endgame_pixels;
 
 use super::classify::guarded_t1;
 use super::complex::ContourWalker;
@@ -150,7 +152,7 @@ pub fn run<O: PixelOracle>(
     let mut mesh = Mesh::of(&tri, w, h);
     let mut cur = r.shaded(&mesh, &tri, ids.pixels());
     r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
-    let mut classifier = r.classifier(judge, &first, &mesh, &tri, ids.pixels(), &cur, cancel)?;
+    let mut classifier = r.classifier(judge);
 
     let mut contours = ContourWalker::new(w, r.px.n);
     let mut prev: Option<LinearImage> = None;
@@ -224,6 +226,17 @@ pub fn run<O: PixelOracle>(
             return Ok(frame);
         }
         cur = frame.image;
+        if classifier.wants_noise() {
+            r.noise_twin(
+                &first,
+                &mesh,
+                &tri,
+                ids.pixels(),
+                &cur,
+                &mut *classifier,
+                cancel,
+            )?;
+        }
         // 5. Trace, re-triangulate, shade, fill.
         let (next_mesh, t) = r.refine(&mut tri, &plan.work, iter + 1, cancel)?;
         let mut next = r.shaded(&next_mesh, &tri, ids.pixels());
@@ -292,44 +305,28 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         self.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
     }
 
-    /// The classification oracle of `Settings::oracle`. The perceptual one measures the
-    /// noise twin of the first sample set first, when noise compensation is on and
-    /// anything can become final (T0 > 0).
-    #[allow(clippy::too_many_arguments)]
-    fn classifier<'j>(
-        &mut self,
-        judge: &'j mut dyn Judge,
-        first: &[PixelCoord],
-        mesh: &Mesh,
-        tri: &Triangulator,
-        ids: &[ObjectId],
-        cur: &LinearImage,
-        cancel: &CancelToken,
-    ) -> Result<Box<dyn Classifier + 'j>, Cancelled> {
+    /// The classification oracle of `Settings::oracle`. The perceptual one discounts noise
+    /// when noise compensation is on and anything can become final (T0 > 0); it measures
+    /// that noise after the first frame ([`Self::noise_twin`]).
+    fn classifier<'j>(&self, judge: &'j mut dyn Judge) -> Box<dyn Classifier + 'j> {
         let s = self.s;
         let t0 = f64::from(s.t0);
         let t1 = s.t1.map(|v| guarded_t1(t0, f64::from(v)));
-        Ok(match s.oracle {
-            Oracle::Perceptual => {
-                let noise = if s.noise_compensation && s.t0 > 0.0 {
-                    self.noise_twin(first, mesh, tri, ids, cur, judge, cancel)?
-                } else {
-                    None
-                };
-                Box::new(Perceptual {
-                    judge,
-                    t0,
-                    t1,
-                    noise,
-                    exposure: s.exposure,
-                })
-            }
+        match s.oracle {
+            Oracle::Perceptual => Box::new(Perceptual {
+                judge,
+                t0,
+                t1,
+                noise: None,
+                compensates: s.noise_compensation && s.t0 > 0.0,
+                exposure: s.exposure,
+            }),
             Oracle::Guo => Box::new(Guo {
                 t1,
                 exposure: s.exposure,
                 finals: s.t0 > 0.0,
             }),
-        })
+        }
     }
 
     /// Traces the first sample set and every pixel whose footprint spans several objects;

@@ -2,8 +2,7 @@
 //! pixels traced again with another seed, shaded on the same triangulation, and the
 //! judge's distance between the two pictures: the distance noise alone produces.
 
-use super::classifier::NoiseEstimate;
-use super::judge::Judge;
+use super::classifier::Classifier;
 use super::{Mesh, Run};
 use crate::cancel::{CancelToken, Cancelled};
 use crate::progressive::guo;
@@ -15,11 +14,16 @@ use crate::tracer::{self, PixelOracle};
 use std::time::Instant;
 
 impl<O: PixelOracle> Run<'_, O> {
-    /// Traces the twin of `first` and asks `judge` for its distance to `cur` (the first
-    /// frame, shaded on `mesh`). `None` when the twins equal the first estimates bit for
-    /// bit (a noise-free oracle: F&P04 unchanged, no map computed) or the judge has no
-    /// map. Twin traces count in `noise_probe_pixels` and the timings, not in
-    /// `pixels_traced` (they are not pixels of the image).
+    /// Traces the twin of `first` and hands the classifier the twin image with `cur` (the
+    /// first frame, shaded on `mesh`) to measure the distance noise alone makes. Nothing
+    /// is handed over when the twins equal the first estimates bit for bit (a noise-free
+    /// oracle: F&P04 unchanged, no map computed). Twin traces count in
+    /// `noise_probe_pixels` and the timings, not in `pixels_traced` (they are not pixels
+    /// of the image).
+    ///
+    /// The loop calls this once the first frame is out: the first classification needs no
+    /// noise (every triangle is refined), and the twin's trace, shading and map are a
+    /// fifth to a third of the time to the first frame otherwise.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn noise_twin(
         &mut self,
@@ -28,9 +32,9 @@ impl<O: PixelOracle> Run<'_, O> {
         tri: &Triangulator,
         ids: &[ObjectId],
         cur: &LinearImage,
-        judge: &mut dyn Judge,
+        classifier: &mut dyn Classifier,
         cancel: &CancelToken,
-    ) -> Result<Option<NoiseEstimate>, Cancelled> {
+    ) -> Result<(), Cancelled> {
         let t = Instant::now();
         let twin = Twin {
             inner: self.oracle,
@@ -64,7 +68,7 @@ impl<O: PixelOracle> Run<'_, O> {
             })
             .collect();
         if same {
-            return Ok(None);
+            return Ok(());
         }
         let level = NoiseLevel::new(self.px.w as usize, self.px.h as usize, &amps);
         let t = Instant::now();
@@ -85,14 +89,12 @@ impl<O: PixelOracle> Run<'_, O> {
         swap(self, &mut vals, &mut twin_albedo);
         self.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
         let t = Instant::now();
-        let map = judge.noise_distance(cur, &twin_img, first);
+        let map = classifier.learn_noise(cur, &twin_img, first, level);
+        if let Some(map) = map {
+            self.stats.noise_distance_mean = step_noise_mean(map);
+        }
         self.it.metric_ms += t.elapsed().as_secs_f64() * 1e3;
-        let Some(map) = map.filter(|m| m.len() == self.px.n) else {
-            return Ok(None);
-        };
-        let map = map.into_vec();
-        self.stats.noise_distance_mean = step_noise_mean(&map);
-        Ok(Some(NoiseEstimate { map, level }))
+        Ok(())
     }
 }
 

@@ -102,8 +102,7 @@ impl Plan {
         open: u64,
         samples_per_pixel: u32,
     ) -> bool {
-        let affordable =
-            ITERATION_COST_IN_SAMPLES * samples.n as f64 / f64::from(samples_per_pixel.max(1));
+        let affordable = endgame_pixels(samples.n as u64, samples_per_pixel);
         if open == 0 || open as f64 > affordable.floor() {
             return false;
         }
@@ -132,6 +131,15 @@ fn untraced_open<'a>(
 /// ([`crate::progressive::IterationStats::open_pixels`]).
 pub(super) fn open_pixels(samples: &SampleSet, mesh: &Mesh, classes: &[TriangleClass]) -> u64 {
     untraced_open(samples, mesh, classes).count() as u64
+}
+
+/// At most how many open pixels [`Plan::finish_if_cheaper`] traces at once in an image of
+/// `pixels` pixels at `samples_per_pixel`: one iteration's cost
+/// ([`ITERATION_COST_IN_SAMPLES`] per image pixel) in pixels traced. The time left
+/// ([`crate::progressive::eta`]) predicts the end of a render with it.
+#[must_use]
+pub fn endgame_pixels(pixels: u64, samples_per_pixel: u32) -> f64 {
+    ITERATION_COST_IN_SAMPLES * pixels as f64 / f64::from(samples_per_pixel.max(1))
 }
 
 /// What one iteration of the loop's own work (triangulation, reconstruction, shading and
