@@ -50,10 +50,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// every frame appended to FILE.
 fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64) {
     let tracer = PathTracer::new(scene);
-    let mut tracker = EtaTracker::new(
-        f64::from(scene.progressive.t0),
-        scene.progressive.max_iterations,
-    );
+    let mut tracker = EtaTracker::for_scene(scene);
     let start = Instant::now();
     let mut seen = Vec::new();
     let mut trace = std::env::var_os("ETA_TRACE").map(|path| {

@@ -218,10 +218,7 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     };
     let bar = progress_bar();
     let start = Instant::now();
-    let mut tracker = EtaTracker::new(
-        f64::from(scene.progressive.t0),
-        scene.progressive.max_iterations,
-    );
+    let mut tracker = EtaTracker::for_scene(&scene);
     let mut iterations = a
         .layers
         .as_ref()

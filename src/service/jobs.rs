@@ -1261,10 +1261,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, mut job: JobRecord, token: L
             }
         };
         exposure = scene.display.exposure;
-        let mut eta = EtaTracker::new(
-            f64::from(scene.progressive.t0),
-            scene.progressive.max_iterations,
-        );
+        let mut eta = EtaTracker::for_scene(&scene);
         let mut on_frame = |f: &Frame| {
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
             let progress = progress_of(f, elapsed, eta.update(f, elapsed));
