@@ -34,6 +34,7 @@ use super::classify::guarded_t1;
 use super::complex::ContourWalker;
 use super::mesh::{rasterise, Raster, Tri, Triangulator};
 use super::preview;
+use super::reconstruct::Averaging;
 use super::seeding::initial_samples;
 use super::{ClassCell, Frame, IterationStats, RenderStats, TriangleClass};
 use crate::cancel::{CancelToken, Cancelled};
@@ -447,9 +448,15 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     fn shaded(&mut self, mesh: &Mesh, tri: &Triangulator, ids: &[ObjectId]) -> LinearImage {
         let (w, h) = (self.px.w, self.px.h);
         let mut out = Image::filled(w, h, Rgb::ZERO);
-        let ppd = self.s.pixels_per_degree;
-        self.px
-            .shade(&mesh.tris, &mesh.raster, tri, ids, ppd, out.pixels_mut());
+        let averaging = Averaging::for_render(self.s.pixels_per_degree, self.s.t0);
+        self.px.shade(
+            &mesh.tris,
+            &mesh.raster,
+            tri,
+            ids,
+            averaging,
+            out.pixels_mut(),
+        );
         out
     }
 

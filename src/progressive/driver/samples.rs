@@ -4,7 +4,7 @@
 //! here, one entry per pixel of the image.
 
 use crate::progressive::mesh::{gouraud, Raster, ShadeInput, Tri, Triangulator};
-use crate::progressive::reconstruct::{self, vertex_values};
+use crate::progressive::reconstruct::{self, vertex_values, Averaging};
 use crate::progressive::SampleCell;
 use crate::raster::{Image, PixelCoord, Rgb};
 use crate::scene::ObjectId;
@@ -173,7 +173,7 @@ impl SampleSet {
         raster: &Raster,
         tri: &Triangulator,
         ids: &[ObjectId],
-        pixels_per_degree: f32,
+        averaging: Averaging,
         out: &mut [Rgb],
     ) {
         let all = self.all_traced();
@@ -185,7 +185,7 @@ impl SampleSet {
                 ids,
                 normals: &self.normals,
                 albedo: self.albedo.as_deref(),
-                pixels_per_degree,
+                averaging,
             };
             vertex_values(tris, &samples, &mut self.vertex, &mut self.resolved);
         }
