@@ -49,7 +49,8 @@ pub struct RenderArgs {
     /// Override the image size, as WIDTHxHEIGHT.
     #[arg(long, value_parser = parse_size)]
     pub size: Option<(u32, u32)>,
-    /// Override `progressive.t0` (JND): a triangle whose distance is below it is final.
+    /// Override `progressive.t0` (JND): a triangle whose distance is below it is final,
+    /// and the lower it is (down to 0.25), the more the interpolation averages away noise.
     /// Higher is faster and less accurate; 0 traces every pixel (the reference exactly).
     #[arg(long, value_parser = parse_t0)]
     pub t0: Option<f32>,
