@@ -77,7 +77,7 @@ pub(super) trait Classifier {
 
     /// Whether the oracle discounts noise and has not yet measured it: the loop then
     /// shades the noise twin of the first sample set and hands it to [`Self::learn_noise`]
-    /// before the first pair of frames is judged.
+    /// once, after the first frame and before the first pair of frames is judged.
     fn wants_noise(&self) -> bool {
         false
     }

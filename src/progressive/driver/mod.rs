@@ -227,7 +227,7 @@ pub fn run<O: PixelOracle>(
             return Ok(frame);
         }
         cur = frame.image;
-        if classifier.wants_noise() {
+        if iter == 0 && classifier.wants_noise() {
             r.noise_twin(
                 &first,
                 &mesh,
@@ -693,6 +693,31 @@ mod tests {
             Some(1.001),
             "T1 of a zero first map is guarded above T0"
         );
+    }
+
+    #[test]
+    fn the_noise_twin_is_traced_once_after_the_first_frame() {
+        // Twins that differ (noise to measure) and twins equal bit for bit (an exact
+        // oracle: nothing to measure): either way the first sample set is traced again
+        // once, and the first frame goes out before it.
+        for amp in [0.2, 0.0] {
+            let o = Noisy { step: false, amp };
+            let mut first_frame = None;
+            let f = run(
+                &o,
+                &settings(Oracle::Perceptual),
+                &mut Const(Some(5.0), 0),
+                &mut |f: &Frame| {
+                    first_frame.get_or_insert(f.stats.noise_probe_pixels);
+                },
+                &CancelToken::new(),
+            )
+            .expect("runs");
+            let first_set = f.stats.per_iteration[0].pixels_traced;
+            assert!(f.stats.iterations > 3 && first_set > 0, "amp {amp}");
+            assert_eq!(first_frame, Some(0), "amp {amp}: no twin before frame 0");
+            assert_eq!(f.stats.noise_probe_pixels, first_set, "amp {amp}");
+        }
     }
 
     /// A flat or step-edged field with seed-dependent noise (so the noise twins differ),
