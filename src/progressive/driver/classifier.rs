@@ -75,9 +75,9 @@ pub(super) trait Classifier {
         shown_at: &dyn Fn(PixelCoord) -> Rgb,
     ) -> Option<(f64, f64)>;
 
-    /// Whether the oracle discounts noise and has not yet measured it: the loop then
-    /// shades the noise twin of the first sample set and hands it to [`Self::learn_noise`]
-    /// once, after the first frame and before the first pair of frames is judged.
+    /// Whether the oracle discounts noise: the loop then shades the noise twin of the
+    /// first sample set and hands it to [`Self::learn_noise`] once, after the first frame
+    /// and before the first pair of frames is judged.
     fn wants_noise(&self) -> bool {
         false
     }
@@ -151,7 +151,7 @@ impl Classifier for Perceptual<'_> {
     }
 
     fn wants_noise(&self) -> bool {
-        self.compensates && self.noise.is_none()
+        self.compensates
     }
 
     fn learn_noise(
@@ -161,10 +161,14 @@ impl Classifier for Perceptual<'_> {
         seeds: &[PixelCoord],
         level: Option<NoiseLevel>,
     ) -> Option<&[f32]> {
-        let n = first.pixels().len();
         let map = self.judge.noise_distance(first, twin, seeds)?;
-        let map = Some(map).filter(|m| m.len() == n)?.into_vec();
-        self.noise = Some(NoiseEstimate { map, level });
+        if map.len() != first.pixels().len() {
+            return None;
+        }
+        self.noise = Some(NoiseEstimate {
+            map: map.into_vec(),
+            level,
+        });
         self.noise.as_ref().map(|e| &e.map[..])
     }
 }
