@@ -500,6 +500,12 @@ async fn a_worker_that_lost_its_lease_stops_and_writes_nothing() {
     assert!(j.finished_at.is_none() && !j.has_frame, "{j:?}");
     let image = store.layer_path(&j, glimpse::service::store::Layer::Image, false);
     assert!(std::fs::read(&image).unwrap_or_default().is_empty());
+    // The new attempt makes its folder just after its claim, off the claim's path.
+    let check = until("the running attempt never made its folder");
+    while !store.files_dir(&j).is_dir() {
+        check();
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
     assert_eq!(attempt_folders(&store, id), [store.files_dir(&j)]);
     jobs.shutdown().await;
 }
