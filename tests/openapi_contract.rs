@@ -403,7 +403,7 @@ fn tiny_scene() -> Value {
         "lights": [ { "type": "point", "position": [2, 4, 5], "intensity": [50, 50, 50] },
                     { "type": "environment", "radiance": [0.1, 0.1, 0.1] } ],
         "render": { "mode": "progressive", "samples_per_pixel": 16, "max_bounces": 1, "seed": 1 },
-        "progressive": { "max_iterations": 4 }
+        "progressive": { "max_iterations": 4, "force_loop": true }
     })
 }
 

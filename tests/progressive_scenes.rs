@@ -69,7 +69,7 @@ fn checker_floor(w: u32, h: u32) -> glimpse::scene::Scene {
     use glam::Vec3;
     use glimpse::scene::{Camera, Light, Material, Texture};
     use glimpse::tracer::fixtures;
-    fixtures::scene(
+    let mut s = fixtures::scene(
         w,
         h,
         Camera {
@@ -96,7 +96,10 @@ fn checker_floor(w: u32, h: u32) -> glimpse::scene::Scene {
             irradiance: Vec3::splat(2.0),
         }],
         (4, 1, 7),
-    )
+    );
+    // Direct light at 4 spp: cheap enough to be traced whole unless the loop is forced.
+    s.progressive.force_loop = true;
+    s
 }
 
 /// The albedo map (one cheap primary-ray pass) carries the checker, so the progressive

@@ -102,6 +102,33 @@ fn t0_zero_is_the_reference_bit_for_bit() {
 }
 
 #[test]
+fn a_scene_too_cheap_for_the_loop_is_traced_whole_and_says_so() {
+    let d = setup();
+    let free = SCENE.replace(r#""force_loop": true"#, r#""force_loop": false"#);
+    assert_ne!(free, SCENE);
+    std::fs::write(d.path.join("scene.json"), free).unwrap();
+    ok(&glimpse(
+        &d.path,
+        &["--output", "r.png", "--mode", "reference", "--exr", "r.exr"],
+    ));
+    ok(&glimpse(
+        &d.path,
+        &["--output", "p.png", "--exr", "p.exr", "--stats", "p.json"],
+    ));
+    let s = stats(&d.path, "p.json");
+    assert_eq!(s["stop_reason"], "reference_cheaper", "{s}");
+    assert_eq!(
+        (s["mode"].as_str(), s["iterations"].as_u64()),
+        (Some("progressive"), Some(1))
+    );
+    assert_eq!(
+        std::fs::read(d.path.join("r.exr")).unwrap(),
+        std::fs::read(d.path.join("p.exr")).unwrap(),
+        "traced whole, the picture is the reference's"
+    );
+}
+
+#[test]
 fn a_higher_t0_traces_fewer_pixels() {
     let d = setup();
     let traced = |t0: &str| {

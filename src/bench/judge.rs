@@ -50,6 +50,9 @@ pub struct Condition {
     /// Progressive time ÷ reference time (medians of the alternating runs).
     pub time_ratio: f64,
     pub pixel_fraction: f64,
+    /// The render found its paths too cheap for the loop and traced every pixel
+    /// (stop reason `reference_cheaper`): its picture is the reference.
+    pub traced_whole: bool,
     /// FLIP(progressive, truth) and FLIP(reference, truth), means.
     pub progressive_flip: f64,
     pub reference_flip: f64,
@@ -85,6 +88,8 @@ impl Condition {
     pub fn slow_because(&self) -> Option<SlowBecause> {
         if self.time_ratio <= TIME_TARGET {
             None
+        } else if self.traced_whole {
+            Some(SlowBecause::CheapPaths)
         } else if self.overhead_ratio() >= self.pixel_fraction {
             Some(SlowBecause::Overhead)
         } else {
@@ -106,6 +111,9 @@ pub enum SlowBecause {
     Overhead,
     /// The traced pixels outweighed the rest: the picture needed many of them.
     Pixels,
+    /// The render traced every pixel from the start: its paths are too cheap for the loop
+    /// to pay for its own work (`progressive::driver::cost`).
+    CheapPaths,
 }
 
 /// The scene at `ppd`: timed, judged, its contact sheet written to
@@ -152,6 +160,7 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
         progressive_ms,
         time_ratio: progressive_ms / reference_ms,
         pixel_fraction: prog.stats.pixel_fraction,
+        traced_whole: prog.stats.stop_reason.as_deref() == Some("reference_cheaper"),
         progressive_flip: prog_score.mean,
         reference_flip,
         q: ratio(prog_score.mean, reference_flip),
@@ -259,13 +268,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_slow_render_says_whether_its_pixels_or_the_rest_made_it_slow() {
+    fn a_slow_render_says_whether_its_pixels_the_rest_or_its_cheap_paths_made_it_slow() {
         let mut c = Condition {
             ppd: 60.0,
             reference_ms: 100.0,
             progressive_ms: 80.0,
             time_ratio: 0.8,
             pixel_fraction: 0.2,
+            traced_whole: false,
             progressive_flip: 0.1,
             reference_flip: 0.1,
             q: 1.0,
@@ -277,6 +287,8 @@ mod tests {
         assert_eq!(c.slow_because(), Some(SlowBecause::Overhead));
         c.pixel_fraction = 0.6;
         assert_eq!(c.slow_because(), Some(SlowBecause::Pixels));
+        (c.pixel_fraction, c.time_ratio, c.traced_whole) = (1.0, 1.02, true);
+        assert_eq!(c.slow_because(), Some(SlowBecause::CheapPaths));
         c.time_ratio = TIME_TARGET;
         assert_eq!(c.slow_because(), None);
     }

@@ -215,6 +215,7 @@ fn time_cell(c: &Condition) -> String {
         None => "",
         Some(SlowBecause::Overhead) => ", overhead-bound",
         Some(SlowBecause::Pixels) => ", pixel-bound",
+        Some(SlowBecause::CheapPaths) => ", traced whole: paths too cheap for the loop",
     };
     format!(
         "{:.2} ({:.2} + {:.2}{why})",
@@ -615,11 +616,13 @@ fn in_short(study: &Study) -> String {
             "on {n} of {of} {what} the progressive picture was at least as close to the truth \
              as the reference, in at most {TIME_TARGET}× its time (median {:.2}× the \
              reference's time, median Q {:.2}; of those slower than {TIME_TARGET}×, {} were \
-             overhead-bound and {} pixel-bound)",
+             overhead-bound, {} pixel-bound and {} traced whole because their paths were \
+             too cheap for the loop)",
             median(&mut times),
             median(&mut qs),
             slow(SlowBecause::Overhead),
             slow(SlowBecause::Pixels),
+            slow(SlowBecause::CheapPaths),
         )
     };
     let mut parts = Vec::new();

@@ -267,6 +267,7 @@ fn settings(scene: &Scene, opts: &RenderOptions, oracle: driver::Oracle) -> driv
         max_time: opts.max_time,
         samples_per_pixel: scene.render.samples_per_pixel,
         noise_compensation: opts.noise_compensation.unwrap_or(true),
+        force_loop: p.force_loop,
         pixels_per_degree: scene.display.pixels_per_degree,
     }
 }

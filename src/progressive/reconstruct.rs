@@ -400,21 +400,23 @@ fn smooth(
                 next.push(v);
                 let o = nodes[v as usize];
                 let wgt = range_weight(me.guide - o.guide, me.guide_variance + o.guide_variance);
-                let (x, y) = at(o.pixel);
-                fit.add(x - origin.0, y - origin.1, o.value, o.variance, wgt);
+                if wgt > 0.0 {
+                    let (x, y) = at(o.pixel);
+                    fit.add(x - origin.0, y - origin.1, o.value, o.variance, wgt);
+                }
             }
         }
         if next.is_empty() {
             break;
         }
-        let (value, sd) = fit.value_and_sd();
+        let (value, sd, count) = fit.solve();
         let mean = f64::from(value.element_sum()) / 3.0;
         lo = lo.max(mean - ICI_SIGMAS * sd);
         hi = hi.min(mean + ICI_SIGMAS * sd);
         if lo > hi {
             break;
         }
-        kept = (value, fit.effective_count());
+        kept = (value, count);
         if kept.1 >= target {
             break;
         }
@@ -436,30 +438,68 @@ const ICI_SIGMAS: f64 = 2.0;
 struct PlaneFit {
     /// Σ w·u uᵀ, Σ w²·u uᵀ and Σ w²·σ²·u uᵀ with u = (1, x, y), σ² the channels' mean
     /// variance.
-    m: glam::DMat3,
-    m2: glam::DMat3,
-    mv: glam::DMat3,
+    m: Moments,
+    m2: Moments,
+    mv: Moments,
     /// Σ w·u·v per channel.
     r: [glam::DVec3; 3],
 }
 
+/// The six distinct entries of a weighted sum of u uᵀ with u = (1, x, y): the matrix is
+/// symmetric, so a vertex adds 6 products instead of 9 (the fits are most of the
+/// reconstruction's time, which is most of the loop's own work on small images).
+#[derive(Clone, Copy, Default)]
+struct Moments {
+    w: f64,
+    x: f64,
+    y: f64,
+    xx: f64,
+    xy: f64,
+    yy: f64,
+}
+
+impl Moments {
+    fn add(&mut self, x: f64, y: f64, w: f64) {
+        let (wx, wy) = (w * x, w * y);
+        self.w += w;
+        self.x += wx;
+        self.y += wy;
+        self.xx += wx * x;
+        self.xy += wx * y;
+        self.yy += wy * y;
+    }
+
+    fn matrix(&self) -> glam::DMat3 {
+        glam::DMat3::from_cols_array(&[
+            self.w, self.x, self.y, self.x, self.xx, self.xy, self.y, self.xy, self.yy,
+        ])
+    }
+
+    /// lᵀ M l.
+    fn quadratic(&self, l: glam::DVec3) -> f64 {
+        l.x * l.x * self.w
+            + l.y * l.y * self.xx
+            + l.z * l.z * self.yy
+            + 2.0 * (l.x * l.y * self.x + l.x * l.z * self.y + l.y * l.z * self.xy)
+    }
+}
+
 impl PlaneFit {
-    /// No vertex yet (glam's `Default` for matrices is the identity, not zero).
     fn new() -> Self {
         Self {
-            m: glam::DMat3::ZERO,
-            m2: glam::DMat3::ZERO,
-            mv: glam::DMat3::ZERO,
+            m: Moments::default(),
+            m2: Moments::default(),
+            mv: Moments::default(),
             r: [glam::DVec3::ZERO; 3],
         }
     }
 
     fn add(&mut self, x: f64, y: f64, v: Rgb, variance: Rgb, w: f64) {
+        self.m.add(x, y, w);
+        self.m2.add(x, y, w * w);
+        self.mv
+            .add(x, y, w * w * f64::from(variance.element_sum()) / 3.0);
         let u = glam::DVec3::new(1.0, x, y);
-        let uu = glam::DMat3::from_cols(u * u.x, u * u.y, u * u.z);
-        self.m += uu * w;
-        self.m2 += uu * (w * w);
-        self.mv += uu * (w * w * f64::from(variance.element_sum()) / 3.0);
         for c in 0..3 {
             self.r[c] += u * (w * f64::from(v[c]));
         }
@@ -468,30 +508,27 @@ impl PlaneFit {
     /// The intercept's weights ℓ = M⁻¹ e₁, or the mean's (1/Σw, 0, 0) while the
     /// neighbours do not span a plane.
     fn row(&self) -> glam::DVec3 {
-        let det = self.m.determinant();
-        let scale = self.m.x_axis.x.powi(3).max(1e-300);
+        let m = self.m.matrix();
+        let det = m.determinant();
+        let scale = self.m.w.powi(3).max(1e-300);
         if det > 1e-6 * scale {
-            self.m.inverse().x_axis
+            m.inverse().x_axis
         } else {
-            glam::DVec3::new(1.0 / self.m.x_axis.x, 0.0, 0.0)
+            glam::DVec3::new(1.0 / self.m.w, 0.0, 0.0)
         }
     }
 
-    /// The intercept and its standard deviation (channels' mean variance).
-    fn value_and_sd(&self) -> (Rgb, f64) {
+    /// The intercept, its standard deviation (channels' mean variance) and 1 / Σℓᵢ²: how
+    /// many equally noisy vertices the intercept is worth.
+    fn solve(&self) -> (Rgb, f64, f64) {
         let l = self.row();
         let v = Rgb::new(
             l.dot(self.r[0]) as f32,
             l.dot(self.r[1]) as f32,
             l.dot(self.r[2]) as f32,
         );
-        (v, l.dot(self.mv * l).max(0.0).sqrt())
-    }
-
-    /// 1 / Σℓᵢ²: how many equally noisy vertices the intercept is worth.
-    fn effective_count(&self) -> f64 {
-        let l = self.row();
-        1.0 / l.dot(self.m2 * l).max(1e-300)
+        let sd = self.mv.quadratic(l).max(0.0).sqrt();
+        (v, sd, 1.0 / self.m2.quadratic(l).max(1e-300))
     }
 }
 
@@ -511,7 +548,13 @@ fn range_weight(d: Rgb, var: Rgb) -> f64 {
         };
     }
     let k = f64::from(RANGE_SIGMAS);
-    (-(chi2 / 3.0) / (2.0 * k * k)).exp()
+    let exponent = (chi2 / 3.0) / (2.0 * k * k);
+    // Past e⁻³⁰ a neighbour's share of any fit is below f32's precision: skip the exp.
+    if exponent > 30.0 {
+        0.0
+    } else {
+        (-exponent).exp()
+    }
 }
 
 #[cfg(test)]
@@ -650,10 +693,10 @@ mod tests {
         ] {
             fit.add(x, y, Rgb::splat(plane(x, y) as f32), Rgb::splat(0.01), 1.0);
         }
-        let (v, sd) = fit.value_and_sd();
+        let (v, sd, count) = fit.solve();
         assert!((v.x - 1.0).abs() < 1e-5, "{v}");
         // Extrapolating to a corner costs precision: worth fewer than its 6 vertices.
-        assert!(fit.effective_count() < 6.0 && sd > 0.1 / 6f64.sqrt());
+        assert!(count < 6.0 && sd > 0.1 / 6f64.sqrt());
     }
 
     #[test]

@@ -52,11 +52,14 @@ pub struct RenderStats {
     pub t1_used: Option<f64>,
     #[serde(default)]
     pub per_iteration: Vec<IterationStats>,
-    /// Object-id map and first sample set (§4.1), ms; not part of trace_ms.
+    /// The cost probe (`driver::cost`), object-id map and first sample set (§4.1), ms;
+    /// not part of trace_ms.
     #[serde(default)]
     pub analysis_ms: f64,
     /// Why the loop ended: "all_final", "traced_rest" (the open triangles were traced
-    /// whole, cheaper than another iteration), "all_traced", "max_iterations",
+    /// whole, cheaper than another iteration), "reference_cheaper" (every pixel traced
+    /// from the start: the scene's paths are too cheap for the loop to pay for its own
+    /// work, `driver::cost`), "all_traced", "max_iterations",
     /// "max_pixels", "max_time", "no_triangles" (1-pixel-wide images are traced fully).
     #[serde(default)]
     pub stop_reason: Option<String>,

@@ -492,6 +492,7 @@ pub struct ProgressiveDoc {
     pub homogeneity: f32,
     pub epsilon: f32,
     pub max_iterations: u64,
+    pub force_loop: bool,
 }
 
 impl Default for ProgressiveDoc {
@@ -504,6 +505,7 @@ impl Default for ProgressiveDoc {
             homogeneity: p.homogeneity,
             epsilon: p.epsilon,
             max_iterations: u64::from(p.max_iterations),
+            force_loop: p.force_loop,
         }
     }
 }

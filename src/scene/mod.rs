@@ -328,6 +328,10 @@ pub struct ProgressiveSettings {
     pub homogeneity: f32,
     pub epsilon: f32,
     pub max_iterations: u32,
+    /// Run the perceptual loop even where the first sample set shows that tracing every
+    /// pixel costs less (`progressive::driver::plan::loop_pays`): to watch the method on a
+    /// cheap scene. Off by default.
+    pub force_loop: bool,
 }
 
 impl Default for ProgressiveSettings {
@@ -339,6 +343,7 @@ impl Default for ProgressiveSettings {
             homogeneity: 0.8,
             epsilon: 1.0,
             max_iterations: 64,
+            force_loop: false,
         }
     }
 }

@@ -1428,6 +1428,7 @@ fn check_progressive(cx: &mut Ctx, p: &ProgressiveDoc) -> ProgressiveSettings {
         homogeneity: p.homogeneity,
         epsilon: p.epsilon,
         max_iterations,
+        force_loop: p.force_loop,
     }
 }
 

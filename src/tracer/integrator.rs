@@ -22,10 +22,11 @@ pub const RR_START: u32 = 3;
 const SHADOW_SHRINK: f32 = 1.0 - 1e-4;
 
 impl PathTracer {
-    /// One path through pixel (x, y); its random numbers come from `rng` only.
+    /// One path through pixel (x, y); its random numbers come from `rng` only. Adds the
+    /// rays it casts (camera, bounce and shadow rays) to `rays`: what a path costs.
     #[inline]
-    pub(crate) fn trace_path(&self, x: u32, y: u32, rng: &mut Rng) -> Vec3 {
-        self.trace_path_impl::<false>(x, y, rng, &mut None)
+    pub(crate) fn trace_path(&self, x: u32, y: u32, rng: &mut Rng, rays: &mut u32) -> Vec3 {
+        self.trace_path_impl::<false>(x, y, rng, &mut None, rays)
     }
 
     /// [`PathTracer::trace_path`], also reporting in `albedo` the texture albedo of the
@@ -39,9 +40,10 @@ impl PathTracer {
         y: u32,
         rng: &mut Rng,
         albedo: &mut Option<Vec3>,
+        rays: &mut u32,
     ) -> Vec3 {
         *albedo = None;
-        self.trace_path_impl::<true>(x, y, rng, albedo)
+        self.trace_path_impl::<true>(x, y, rng, albedo, rays)
     }
 
     #[inline(always)]
@@ -51,6 +53,7 @@ impl PathTracer {
         y: u32,
         rng: &mut Rng,
         albedo: &mut Option<Vec3>,
+        rays: &mut u32,
     ) -> Vec3 {
         let mut dir = self.camera.direction(x, y, rng.next_2d());
         let mut o = self.camera.origin;
@@ -66,6 +69,7 @@ impl PathTracer {
         let lights = &self.lights;
         let mut depth = 0u32;
         loop {
+            *rays += 1;
             // The camera ray goes through the screen-tile lists (primary.rs), same hit.
             let hit = if depth == 0 {
                 self.camera_hit(x, y, dir)
@@ -145,6 +149,7 @@ impl PathTracer {
                             } else {
                                 (ls.wi, f32::INFINITY)
                             };
+                            *rays += u32::from(shadow_dir.is_finite());
                             if shadow_dir.is_finite()
                                 && !self.geo.occluded(origin, shadow_dir, tmax, hit.prim)
                             {

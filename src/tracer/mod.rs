@@ -77,6 +77,7 @@ pub trait PixelOracle: Sync {
             radiance,
             variance: Rgb::ZERO,
             albedo,
+            rays: 0,
         }
     }
     /// [`PixelOracle::estimate_with`] with the scene's samples and seed.
@@ -86,6 +87,7 @@ pub trait PixelOracle: Sync {
             radiance,
             variance: Rgb::ZERO,
             albedo,
+            rays: 0,
         }
     }
     /// Whether any pixel can have a [`PixelOracle::texture_albedo`] (a scene without
@@ -112,6 +114,10 @@ pub struct Estimate {
     pub variance: Rgb,
     /// [`PixelOracle::radiance_albedo_with`]'s albedo (textured scenes only).
     pub albedo: Option<Rgb>,
+    /// Rays cast for it (camera, bounce and shadow rays): what the estimate cost, counted
+    /// rather than timed so that decisions taken on it do not depend on the machine or
+    /// its load. 0 from an oracle that does not count (its cost is unknown).
+    pub rays: u32,
 }
 
 /// Sub-pixel positions of [`PixelOracle::texture_albedo`]: a 2×2 stratified pattern over
@@ -566,13 +572,17 @@ impl PathTracer {
         // Without ALBEDO it stays `None` (nothing summed).
         let mut albedo = ALBEDO.then_some(Vec3::ZERO);
         let mut kept = 0u32;
+        let mut rays = 0u32;
         for i in 0..samples {
             let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
             let (v, a) = if ALBEDO {
                 let mut a = None;
-                (self.trace_path_albedo(p.x, p.y, &mut rng, &mut a), a)
+                (
+                    self.trace_path_albedo(p.x, p.y, &mut rng, &mut a, &mut rays),
+                    a,
+                )
             } else {
-                (self.trace_path(p.x, p.y, &mut rng), None)
+                (self.trace_path(p.x, p.y, &mut rng, &mut rays), None)
             };
             if v.is_finite() {
                 sum += v;
@@ -591,6 +601,7 @@ impl PathTracer {
                 radiance: Rgb::ZERO,
                 variance: Rgb::INFINITY,
                 albedo: None,
+                rays,
             };
         }
         let k = f64::from(kept);
@@ -611,6 +622,7 @@ impl PathTracer {
                 Rgb::INFINITY
             },
             albedo,
+            rays,
         }
     }
 

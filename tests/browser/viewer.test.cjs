@@ -66,6 +66,7 @@ const FALLBACK_SCENE = {
     { type: "environment", radiance: [0.1, 0.1, 0.1] },
   ],
   render: { mode: "progressive", samples_per_pixel: 4, max_bounces: 2, seed: 1 },
+  progressive: { force_loop: true },
 };
 
 // A job that keeps the single worker busy until we cancel it, so that the viewer's job
@@ -232,6 +233,9 @@ async function main() {
       loaded.render = Object.assign({}, loaded.render, {
         samples_per_pixel: Math.min((loaded.render && loaded.render.samples_per_pixel) || 4, 4),
       });
+      // At 4 spp an example's paths can be cheap enough to be traced whole in one frame;
+      // the slider and layer checks need the loop's iterations.
+      loaded.progressive = Object.assign({}, loaded.progressive, { force_loop: true });
       sceneText = JSON.stringify(loaded, null, 2);
     } else {
       console.log("note - the server bundles no example; using a built-in scene");

@@ -174,7 +174,7 @@ pub fn sphere_scene(
             { "type": "environment", "radiance": [0.3, 0.3, 0.4] }
         ],
         "render": { "mode": mode, "samples_per_pixel": spp, "max_bounces": 2, "seed": seed },
-        "progressive": { "t0": 0.5, "initial_rate": 0.02 }
+        "progressive": { "t0": 0.5, "initial_rate": 0.02, "force_loop": true }
     })
 }
 
@@ -206,7 +206,8 @@ pub async fn wait_states(
 }
 
 /// A small lit scene with a texture edge, a silhouette and a shadow (40×30, 4 spp): cheap,
-/// and something for the progressive loop to refine.
+/// and something for the progressive loop to refine (forced: its paths are so short that
+/// a render would otherwise trace it whole, `reference_cheaper`).
 pub const LIT_SCENE: &str = r#"{
   "version": 1, "name": "tiny",
   "image": { "width": 40, "height": 30 },
@@ -224,7 +225,8 @@ pub const LIT_SCENE: &str = r#"{
     { "type": "quad", "corner": [-0.5, 2.5, -0.5], "edge_u": [1, 0, 0], "edge_v": [0, 0, 1],
       "material": "lamp" }
   ],
-  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 3 }
+  "render": { "mode": "progressive", "samples_per_pixel": 4, "max_bounces": 2, "seed": 3 },
+  "progressive": { "force_loop": true }
 }"#;
 
 /// The fields every statistics object holds (cli.md; a job's `stats` is the same object).

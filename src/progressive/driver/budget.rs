@@ -14,6 +14,10 @@ pub enum Stop {
     /// The triangles still open were traced whole, which cost less than another
     /// iteration (`Plan::finish_if_cheaper`).
     TracedRest,
+    /// Every pixel was traced after the first frame: the paths are so cheap here that
+    /// the loop's own work would have cost more than the pixels it saves
+    /// (`plan::loop_pays`). The frame is the reference.
+    ReferenceCheaper,
     MaxPixels,
     MaxTime,
     MaxIterations,
@@ -28,6 +32,7 @@ impl Stop {
             Stop::AllTraced => "all_traced",
             Stop::AllFinal => "all_final",
             Stop::TracedRest => "traced_rest",
+            Stop::ReferenceCheaper => "reference_cheaper",
             Stop::MaxPixels => "max_pixels",
             Stop::MaxTime => "max_time",
             Stop::MaxIterations => "max_iterations",

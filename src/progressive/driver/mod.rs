@@ -20,6 +20,7 @@
 
 mod budget;
 mod classifier;
+mod cost;
 mod fill;
 mod judge;
 mod noise_twin;
@@ -87,6 +88,8 @@ pub struct Settings {
     pub samples_per_pixel: u32,
     /// Noise-aware classification ([`super::noise`]); perceptual mode only.
     pub noise_compensation: bool,
+    /// Run the loop even where tracing every pixel costs less ([`cost::loop_pays`]).
+    pub force_loop: bool,
     /// The declared viewing condition: how much averaging the reconstruction needs
     /// ([`super::reconstruct`]).
     pub pixels_per_degree: f32,
@@ -138,9 +141,18 @@ pub fn run<O: PixelOracle>(
     } else {
         0.0
     };
+    let probe_ms = match cost::probe(oracle, s, cancel)? {
+        cost::Verdict::Loop { probe_ms } => probe_ms,
+        cost::Verdict::Reference { probe_ms } => {
+            let f = cost::reference(oracle, s, start, preview + probe_ms, cancel)?;
+            on_frame(&f);
+            return Ok(f);
+        }
+    };
     let mut r = Run::new(oracle, s);
     r.start = start;
     r.stats.trace_ms = preview;
+    r.stats.analysis_ms = probe_ms;
     let (ids, seeds) = r.analyse();
     if w < 2 || h < 2 {
         return r.trace_whole(ids, on_frame, cancel);
@@ -294,7 +306,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         (self.px.normals, self.px.mixed) = (maps.normals, maps.mixed);
         let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
         let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
-        self.stats.analysis_ms = t.elapsed().as_secs_f64() * 1e3;
+        self.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
         (ids, seeds)
     }
 
@@ -582,6 +594,7 @@ fn counts(classes: &[TriangleClass]) -> [u64; 3] {
 mod tests {
     use super::*;
     use crate::progressive::SampleCell;
+    use crate::tracer::Estimate;
 
     struct Fn2<F>(u32, u32, F);
     impl<F: Fn(u32, u32) -> Rgb + Sync> PixelOracle for Fn2<F> {
@@ -596,6 +609,73 @@ mod tests {
         }
         fn object_id(&self, _: PixelCoord) -> ObjectId {
             0
+        }
+    }
+
+    /// [`Fn2`] whose every estimate casts `rays` rays.
+    struct Rays<F>(Fn2<F>, u32);
+    impl<F: Fn(u32, u32) -> Rgb + Sync> PixelOracle for Rays<F> {
+        fn size(&self) -> (u32, u32) {
+            self.0.size()
+        }
+        fn radiance(&self, p: PixelCoord) -> Rgb {
+            self.0.radiance(p)
+        }
+        fn radiance_with(&self, p: PixelCoord, n: u32, seed: u64) -> Rgb {
+            self.0.radiance_with(p, n, seed)
+        }
+        fn object_id(&self, p: PixelCoord) -> ObjectId {
+            self.0.object_id(p)
+        }
+        fn estimate(&self, p: PixelCoord) -> Estimate {
+            Estimate {
+                rays: self.1,
+                ..self.0.estimate(p)
+            }
+        }
+    }
+
+    #[test]
+    fn paths_too_cheap_for_the_loop_are_traced_whole_as_the_reference() {
+        let shade = |x: u32, y: u32| Rgb::new(x as f32 * 0.01, y as f32 * 0.02, 0.1);
+        let s = settings(Oracle::Perceptual);
+        let render = |rays: u32, s: &Settings| {
+            let mut frames = Vec::new();
+            let o = Rays(Fn2(60, 40, shade), rays);
+            let mut j = Const(Some(0.0), 0);
+            let f = run(
+                &o,
+                s,
+                &mut j,
+                &mut |f| frames.push(f.iteration),
+                &CancelToken::new(),
+            )
+            .expect("runs");
+            (f, frames, j.1)
+        };
+        let (f, frames, judged) = render(20, &s);
+        assert_eq!(f.stats.stop_reason.as_deref(), Some("reference_cheaper"));
+        assert_eq!((frames, judged), (vec![0], 0), "one frame, no metric");
+        assert_eq!(f.stats.pixel_fraction, 1.0);
+        let reference =
+            tracer::render_reference(&Fn2(60, 40, shade), &CancelToken::new(), &|_, _| {})
+                .expect("runs");
+        assert_eq!(f.image.pixels(), reference.pixels());
+        // Dearer paths, a budget, or `force_loop` keep the loop.
+        let (f, frames, _) = render(40, &s);
+        assert_ne!(f.stats.stop_reason.as_deref(), Some("reference_cheaper"));
+        assert!(frames.len() > 1 && f.stats.pixel_fraction < 1.0);
+        let forced = Settings {
+            force_loop: true,
+            ..settings(Oracle::Perceptual)
+        };
+        let budget = Settings {
+            max_pixels: Some(2000),
+            ..settings(Oracle::Perceptual)
+        };
+        for s in [&forced, &budget] {
+            let (f, frames, _) = render(20, s);
+            assert!(frames.len() > 1, "{:?}", f.stats.stop_reason);
         }
     }
 
@@ -629,6 +709,7 @@ mod tests {
             // an iteration (`Plan::finish_if_cheaper`) on these small images.
             samples_per_pixel: 4096,
             noise_compensation: true,
+            force_loop: false,
             pixels_per_degree: 28.0,
         }
     }
