@@ -194,8 +194,9 @@ pub fn render(
 }
 
 /// [`render`], also reporting `(pixels done, pixels in all)` through `on_pixels` during
-/// the reference mode's single pass, which has no frame until its end (the command line's
-/// progress bar).
+/// a single pass that has no frame until its end (the reference mode's, and a
+/// progressive render's traced whole because its paths are too cheap for the loop): the
+/// command line's progress bar.
 pub fn render_reporting(
     scene: &Scene,
     oracle: &impl PixelOracle,
@@ -216,11 +217,11 @@ pub fn render_reporting(
                 scene.progressive.epsilon,
                 scene.render.seed,
             );
-            driver::run(oracle, &settings, &mut judge, on_frame, cancel)
+            driver::run_reporting(oracle, &settings, &mut judge, on_frame, on_pixels, cancel)
         }
         RenderMode::Guo => {
             let settings = settings(scene, opts, driver::Oracle::Guo);
-            driver::run(oracle, &settings, &mut NoJudge, on_frame, cancel)
+            driver::run_reporting(oracle, &settings, &mut NoJudge, on_frame, on_pixels, cancel)
         }
     }
 }

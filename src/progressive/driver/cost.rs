@@ -49,18 +49,19 @@ pub(super) fn probe<O: PixelOracle>(
     })
 }
 
-/// The render traced whole, as the reference mode does (the same image, bit for bit),
-/// with the object ids as its `objects` layer. `before_ms` is the preview's and the
-/// probe's time.
+/// The render traced whole, as the reference mode does (the same image, bit for bit,
+/// reporting its pixels through `on_pixels`), with the object ids as its `objects` layer.
+/// `before_ms` is the preview's and the probe's time.
 pub(super) fn reference<O: PixelOracle>(
     oracle: &O,
     s: &Settings,
     start: Instant,
     before_ms: f64,
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
     let t = Instant::now();
-    let image = tracer::render_reference(oracle, cancel, &|_, _| {})?;
+    let image = tracer::render_reference(oracle, cancel, on_pixels)?;
     let trace_ms = t.elapsed().as_secs_f64() * 1e3;
     let objects = Arc::new(tracer::object_id_map(oracle));
     let (w, h) = oracle.size();

@@ -129,6 +129,20 @@ pub fn run<O: PixelOracle>(
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
+    run_reporting(oracle, s, judge, on_frame, &|_, _| {}, cancel)
+}
+
+/// [`run`], also reporting `(pixels done, pixels in all)` through `on_pixels` while a
+/// render the loop cannot pay for is traced whole ([`cost`]), which has no frame until
+/// its end.
+pub fn run_reporting<O: PixelOracle>(
+    oracle: &O,
+    s: &Settings,
+    judge: &mut dyn Judge,
+    on_frame: &mut dyn FnMut(&Frame),
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
     if cancel.is_cancelled() {
         return Err(Cancelled);
     }
@@ -144,7 +158,8 @@ pub fn run<O: PixelOracle>(
     let probe_ms = match cost::probe(oracle, s, cancel)? {
         cost::Verdict::Loop { probe_ms } => probe_ms,
         cost::Verdict::Reference { probe_ms } => {
-            let f = cost::reference(oracle, s, start, preview + probe_ms, cancel)?;
+            let before = preview + probe_ms;
+            let f = cost::reference(oracle, s, start, before, on_pixels, cancel)?;
             on_frame(&f);
             return Ok(f);
         }
@@ -639,15 +654,21 @@ mod tests {
     fn paths_too_cheap_for_the_loop_are_traced_whole_as_the_reference() {
         let shade = |x: u32, y: u32| Rgb::new(x as f32 * 0.01, y as f32 * 0.02, 0.1);
         let s = settings(Oracle::Perceptual);
+        let reported = std::sync::atomic::AtomicUsize::new(0);
         let render = |rays: u32, s: &Settings| {
             let mut frames = Vec::new();
             let o = Rays(Fn2(60, 40, shade), rays);
             let mut j = Const(Some(0.0), 0);
-            let f = run(
+            let on_pixels = |done: usize, all: usize| {
+                assert_eq!(all, 60 * 40);
+                reported.fetch_max(done, std::sync::atomic::Ordering::Relaxed);
+            };
+            let f = run_reporting(
                 &o,
                 s,
                 &mut j,
                 &mut |f| frames.push(f.iteration),
+                &on_pixels,
                 &CancelToken::new(),
             )
             .expect("runs");
@@ -656,6 +677,8 @@ mod tests {
         let (f, frames, judged) = render(20, &s);
         assert_eq!(f.stats.stop_reason.as_deref(), Some("reference_cheaper"));
         assert_eq!((frames, judged), (vec![0], 0), "one frame, no metric");
+        let done = reported.load(std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(done, 60 * 40, "its pixels are reported as traced");
         assert_eq!(f.stats.pixel_fraction, 1.0);
         let reference =
             tracer::render_reference(&Fn2(60, 40, shade), &CancelToken::new(), &|_, _| {})
