@@ -5,7 +5,9 @@
 //! ended (total T), the estimate standing at 25, 50 and 75 % of T (the last frame at or
 //! before that moment) is compared with the time that was in fact left:
 //! error = |estimate − left| / left, the estimate being the range's middle; "finishing"
-//! counts as one mean iteration time left, and an unknown estimate counts as 100 % off.
+//! counts as one mean iteration time left, and an unknown estimate counts as 100 % off. A
+//! render traced whole because its paths are too cheap for the loop has one frame, at its
+//! end: its time left is the pixel pass's ([`PassEta`], what the command line shows).
 //! Medians over `RUNS` runs per scene, then per scene and over all scenes.
 //!
 //! Then the same on a generated corpus (`glimpse bench --corpus N --seed S`'s scenes, not
@@ -22,7 +24,7 @@
 
 use glimpse::bench::corpus;
 use glimpse::cancel::CancelToken;
-use glimpse::progressive::eta::{Eta, EtaTracker};
+use glimpse::progressive::eta::{Eta, EtaTracker, PassEta};
 use glimpse::progressive::{self, Frame, RenderOptions};
 use glimpse::scene::examples::EXAMPLES;
 use glimpse::scene::{parse_scene, Limits, Scene, SceneOrigin};
@@ -46,9 +48,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// (elapsed ms, estimate) after each frame, and the total time; with `ETA_TRACE=FILE`,
-/// every frame appended to FILE.
-fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64) {
+/// (elapsed ms, estimate) after each frame (and each batch of a pixel pass), the total
+/// time and the number of frames; with `ETA_TRACE=FILE`, every frame appended to FILE.
+fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64, usize) {
     let tracer = PathTracer::new(scene);
     let mut tracker = EtaTracker::for_scene(scene);
     let start = Instant::now();
@@ -77,13 +79,25 @@ fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64) {
         }
         seen.push((ms, eta));
     };
+    let passed = std::sync::Mutex::new(Vec::new());
+    let pass = PassEta::default();
+    let on_pixels = |done: usize, total: usize| {
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let eta = pass.update(done, total, ms);
+        passed.lock().expect("not poisoned").push((ms, eta));
+    };
     let opts = RenderOptions {
         mode: Some(glimpse::scene::RenderMode::Progressive),
         ..RenderOptions::default()
     };
-    progressive::render(scene, &tracer, &opts, &mut on_frame, &CancelToken::new())
+    let cancel = CancelToken::new();
+    progressive::render_reporting(scene, &tracer, &opts, &mut on_frame, &on_pixels, &cancel)
         .expect("not cancelled");
-    (seen, start.elapsed().as_secs_f64() * 1e3)
+    let total = start.elapsed().as_secs_f64() * 1e3;
+    let frames = seen.len();
+    seen.extend(passed.into_inner().expect("not poisoned"));
+    seen.sort_by(|a, b| a.0.total_cmp(&b.0));
+    (seen, total, frames)
 }
 
 /// Relative error of the estimate standing at `share` of the run.
@@ -130,12 +144,12 @@ fn study(name: &str, scene: &Scene, runs: usize) -> Vec<f64> {
     let mut totals = Vec::new();
     let mut frames = Vec::new();
     for run in 0..runs {
-        let (seen, total) = observe(scene, run);
+        let (seen, total, n) = observe(scene, run);
         for (k, &share) in AT.iter().enumerate() {
             per[k].push(error_at(&seen, total, share));
         }
         totals.push(total);
-        frames.push(seen.len() as f64);
+        frames.push(n as f64);
     }
     let m: Vec<f64> = per.into_iter().map(median).collect();
     println!(

@@ -1,7 +1,7 @@
 //! `glimpse render SCENE.json --output OUT.png`: one scene without a server.
 
 use crate::cancel::CancelToken;
-use crate::progressive::eta::{self, Eta, EtaTracker};
+use crate::progressive::eta::{self, Eta, EtaTracker, PassEta};
 use crate::progressive::{self, RenderOptions};
 use crate::raster::{self, LinearImage};
 use crate::scene::{Limits, RenderMode};
@@ -234,9 +234,10 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         bar.set_position(done.max(bar.position()));
         bar.set_message(frame_line(f, elapsed, &eta));
     };
+    let pass = PassEta::default();
     let on_pixels = |done: usize, total: usize| {
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
-        let (line, share) = pass_line(done, total, elapsed);
+        let (line, share) = pass_line(&pass, done, total, elapsed);
         bar.set_position(share);
         bar.set_message(line);
     };
@@ -317,19 +318,16 @@ fn frame_line(f: &progressive::Frame, elapsed_ms: f64, eta: &Eta) -> String {
 
 /// The progress bar's words and position during the reference's single pass: the time
 /// left extrapolated from the pixels done so far (pixels cost about the same on average).
-fn pass_line(done: usize, total: usize, elapsed_ms: f64) -> (String, u64) {
+fn pass_line(pass: &PassEta, done: usize, total: usize, elapsed_ms: f64) -> (String, u64) {
     let share = if total == 0 {
         1.0
     } else {
         done as f64 / total as f64
     };
-    let left = if done == 0 {
-        "estimating time left…".to_string()
-    } else if done >= total {
-        "finishing".to_string()
-    } else {
-        let ms = elapsed_ms * (total - done) as f64 / done as f64;
-        format!("about {} left", eta::seconds(ms))
+    let left = match pass.update(done, total, elapsed_ms) {
+        Eta::Unknown => "estimating time left…".to_string(),
+        Eta::Left { ms, .. } => format!("about {} left", eta::seconds(ms)),
+        Eta::Finishing | Eta::Done => "finishing".to_string(),
     };
     let line = format!(
         "{:.1} % of pixels traced · {} elapsed · {left}",
@@ -466,12 +464,14 @@ mod tests {
 
     #[test]
     fn the_reference_pass_extrapolates_its_time_left() {
-        let (line, pos) = pass_line(250, 1000, 1000.0);
+        let pass = PassEta::default();
+        assert!(pass_line(&pass, 0, 1000, 5.0).0.contains("estimating"));
+        let (line, pos) = pass_line(&pass, 250, 1000, 755.0);
         assert_eq!(pos, 250);
         assert!(line.contains("25.0 % of pixels traced"), "{line}");
-        assert!(line.contains("about 3.0 s left"), "{line}");
-        assert!(pass_line(0, 1000, 5.0).0.contains("estimating"));
-        assert!(pass_line(1000, 1000, 5.0).0.contains("finishing"));
+        // 250 pixels in the 750 ms since the first report: 750 left take 2.25 s.
+        assert!(line.contains("about 2.2 s left"), "{line}");
+        assert!(pass_line(&pass, 1000, 1000, 5.0).0.contains("finishing"));
     }
 
     #[test]

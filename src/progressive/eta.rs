@@ -53,13 +53,14 @@ pub const TAIL_RATIO: f64 = 0.8;
 pub const TAIL_ITERATIONS: f64 = 1.0;
 
 /// After the first frame (no distance yet), the time left is about this many times the
-/// time so far (bundled scenes, three runs each, and an 8-scene corpus: 1.6–16, median
-/// 6.9; the first frame comes before the noise twin is measured).
-pub const FIRST_FRAME_FACTOR: f64 = 6.9;
+/// time so far (bundled scenes, three runs each, and the six scenes of an 8-scene corpus
+/// that run the loop: 1.3–12.6, median 5.3; the first frame comes before the noise twin
+/// is measured).
+pub const FIRST_FRAME_FACTOR: f64 = 5.5;
 
 /// After the second frame (one distance `d`), the time left is about this times the time
-/// so far times ln(d / t0) (the same traces: 0.2–3.3, median 1.9).
-pub const ONE_DISTANCE_FACTOR: f64 = 1.9;
+/// so far times ln(d / t0) (the same traces: 0.1–3.7, median 1.6).
+pub const ONE_DISTANCE_FACTOR: f64 = 1.6;
 
 /// Open pixels are extrapolated over this many iterations (the open area falls fast at
 /// first, then slower: the last two say most about the next).
@@ -150,6 +151,38 @@ pub fn seconds(ms: f64) -> String {
 
 /// Follows one render's frames and estimates the time left after each.
 #[derive(Debug)]
+/// The time left of a single pass over every pixel (the reference mode's, or a render
+/// traced whole because its paths are too cheap for the loop), told `(done, total)` after
+/// each batch from the tracing threads: the rest at the rate since the pass's first report,
+/// so that what came before the pass (the probe, the setup) does not count as its pace.
+#[derive(Default)]
+pub struct PassEta {
+    /// (elapsed ms, pixels done) at the first report.
+    origin: std::sync::Mutex<Option<(f64, usize)>>,
+}
+
+impl PassEta {
+    /// The estimate once `done` of `total` pixels are traced, `elapsed_ms` into the render.
+    pub fn update(&self, done: usize, total: usize, elapsed_ms: f64) -> Eta {
+        if done >= total {
+            return Eta::Finishing;
+        }
+        let mut origin = self
+            .origin
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (ms0, done0) = *origin.get_or_insert((elapsed_ms, done));
+        if done <= done0 || elapsed_ms <= ms0 {
+            return Eta::Unknown;
+        }
+        let per_pixel = (elapsed_ms - ms0) / (done - done0) as f64;
+        Eta::around(
+            per_pixel * (total - done) as f64,
+            done as f64 / total as f64,
+        )
+    }
+}
+
 pub struct EtaTracker {
     t0: f64,
     max_iterations: u32,
@@ -356,6 +389,26 @@ mod tests {
     }
 
     #[test]
+    fn a_pass_over_every_pixel_goes_at_its_own_pace() {
+        let p = PassEta::default();
+        // The first report sets the pace's origin: 200 ms went before the pass began.
+        assert_eq!(p.update(10, 100, 210.0), Eta::Unknown);
+        let Eta::Left {
+            ms,
+            low_ms,
+            high_ms,
+            confidence,
+        } = p.update(25, 100, 240.0)
+        else {
+            panic!("a quarter done leaves a time");
+        };
+        // 15 pixels in 30 ms: the 75 left take 150 ms, not 240 × 3.
+        assert!((ms - 150.0).abs() < 1e-9 && (confidence - 0.25).abs() < 1e-12);
+        assert!(low_ms < ms && ms < high_ms);
+        assert_eq!(p.update(100, 100, 400.0), Eta::Finishing);
+    }
+
+    #[test]
     fn says_finishing_once_the_loop_plans_its_last_iteration() {
         // A distance far above t0 would predict many iterations; the plan knows better.
         let mut t = EtaTracker::new(1.0, 64);
@@ -394,13 +447,13 @@ mod tests {
 
     #[test]
     fn the_first_two_frames_get_a_wide_calibrated_range() {
-        // No distance yet: 6.9 times the time so far, within ÷2 and ×2.5.
+        // No distance yet: 5.5 times the time so far, within ÷2 and ×2.5.
         let mut t = EtaTracker::new(1.0, 64);
         assert_eq!(
             t.update(&frame(0, 0.0, false), 100.0),
-            Eta::between(690.0, 345.0, 1725.0, 0.1)
+            Eta::between(550.0, 275.0, 1375.0, 0.1)
         );
-        // One distance of e² JND against t0 = 1: 1.9 · 200 ms · 2 = 760 ms, ×0.5 to ×1.5.
+        // One distance of e² JND against t0 = 1: 1.6 · 200 ms · 2 = 640 ms, ×0.5 to ×1.5.
         let eta = t.update(&frame(1, std::f64::consts::E.powi(2), false), 200.0);
         let Eta::Left {
             ms,
@@ -411,8 +464,8 @@ mod tests {
         else {
             panic!("{eta:?}")
         };
-        assert!((ms - 760.0).abs() < 1e-6 && (low_ms - 380.0).abs() < 1e-6);
-        assert!((high_ms - 1140.0).abs() < 1e-6, "{eta:?}");
+        assert!((ms - 640.0).abs() < 1e-6 && (low_ms - 320.0).abs() < 1e-6);
+        assert!((high_ms - 960.0).abs() < 1e-6, "{eta:?}");
         // A first distance already below t0: the end is near.
         let mut t = EtaTracker::new(1.0, 64);
         t.update(&frame(0, 0.0, false), 100.0);

@@ -199,6 +199,13 @@ fn per_pixel<T: Send + Clone + Default>(
 
 /// Every pixel traced (`render.mode = "reference"`). `progress(done, total)` is called
 /// after each batch from worker threads.
+///
+/// The batches (runs of [`BATCH`] pixels of a row) are traced in a scattered order, so
+/// that the pixels done at any moment sample the whole image: a sky costs a fraction of
+/// a floor, and in raster order the share done ran ahead of the time spent by up to 2×
+/// (a 451² corpus scene: a quarter of its pixels in 8 % of the pass), which the time
+/// left, extrapolated from that share, believed. Each pixel's value is its own (seeded by
+/// its coordinates), whatever the order.
 pub fn render_reference(
     oracle: &impl PixelOracle,
     cancel: &CancelToken,
@@ -218,8 +225,12 @@ pub fn render_reference_with(
     let total = w as usize * h as usize;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let mut data = vec![Rgb::ZERO; total];
-    data.par_chunks_mut(BATCH)
-        .enumerate()
+    let mut batches: Vec<(usize, &mut [Rgb])> = data.chunks_mut(BATCH).enumerate().collect();
+    // Fibonacci hashing of the batch index: a fixed order that spreads neighbours apart.
+    batches.sort_unstable_by_key(|(c, _)| (*c as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    batches
+        .into_par_iter()
+        .with_max_len(1)
         .try_for_each(|(c, chunk)| {
             for (k, dst) in chunk.iter_mut().enumerate() {
                 // Per pixel, as in `per_pixel`: a cancel is seen within one pixel's time.
