@@ -179,7 +179,7 @@ fn check_condition(c: &Value, out: &std::path::Path) {
     let img = glimpse::raster::decode_image(&std::fs::read(&sheet).unwrap()).unwrap();
     // Four panels of the render's size (enlarged by a whole factor) and three 4-pixel gaps.
     assert!(
-        img.height() > 0 && img.width() > 12 && (img.width() - 12) % 4 == 0,
+        img.height() > 0 && img.width() > 12 && (img.width() - 12).is_multiple_of(4),
         "{}",
         sheet.display()
     );

@@ -129,7 +129,7 @@ fn gltf_and_glb_mutants_are_imported_or_refused() {
     });
     // The same box as a .glb: its JSON in a GLB container, the buffer still a data URI.
     let mut j = gltf.clone();
-    while j.len() % 4 != 0 {
+    while !j.len().is_multiple_of(4) {
         j.push(b' ');
     }
     let mut glb = b"glTF".to_vec();

@@ -56,7 +56,7 @@ fn object_colour(id: ObjectId) -> [u8; 3] {
         return [0, 0, 0];
     }
     let hue = (f64::from(id) * 0.618_033_988_75).fract() * 6.0;
-    let value = if id % 2 == 0 { 255.0 } else { 170.0 };
+    let value = if id.is_multiple_of(2) { 255.0 } else { 170.0 };
     let x = 1.0 - (hue % 2.0 - 1.0).abs();
     let (r, g, b) = match hue as u32 {
         0 => (1.0, x, 0.0),

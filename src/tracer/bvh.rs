@@ -424,11 +424,11 @@ fn without_duplicates(
 /// measured 25 k triangles 13.6 s, 100 k 225 s, 1 M some 6 hours, before the first
 /// cancellation check. With distinct costs about a third of the nodes merge per pass.
 fn tie_broken(aabb: Aabb, index: usize) -> Aabb {
-    let extent = Vec3A::from(aabb.diagonal()).max_element();
+    let extent = aabb.diagonal().max_element();
     let scale = if extent > 0.0 {
         extent
     } else {
-        Vec3A::from(aabb.min).abs().max_element().max(1e-6)
+        aabb.min.abs().max_element().max(1e-6)
     };
     // splitmix64 finaliser: well spread bits from consecutive indices.
     let mut h = (index as u64).wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -437,7 +437,7 @@ fn tie_broken(aabb: Aabb, index: usize) -> Aabb {
     h ^= h >> 31;
     let u = (h >> 40) as f32 / (1u64 << 24) as f32; // [0, 1)
     let pad = Vec3A::splat(scale * TIE_BREAK * (0.5 + u));
-    Aabb::new(Vec3A::from(aabb.min) - pad, Vec3A::from(aabb.max) + pad)
+    Aabb::new(aabb.min - pad, aabb.max + pad)
 }
 
 /// Relative growth of a primitive's box in [`tie_broken`]: 1e-4 changes a box's area by
@@ -638,7 +638,7 @@ mod tests {
         for i in 0..1000 {
             let b = tie_broken(a, i);
             assert!(b.min.cmple(a.min).all() && b.max.cmpge(a.max).all());
-            let growth = Vec3A::from(a.min - b.min).max_element();
+            let growth = (a.min - b.min).max_element();
             assert!(growth > 0.0 && growth <= 2.0 * 1.5 * TIE_BREAK, "{growth}");
         }
         assert_ne!(tie_broken(a, 0).min, tie_broken(a, 1).min);

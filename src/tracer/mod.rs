@@ -103,6 +103,27 @@ pub trait PixelOracle: Sync {
     fn footprint_mixed(&self, _p: PixelCoord, _centre: ObjectId) -> bool {
         false
     }
+    /// [`PixelOracle::footprint_mixed`] and [`PixelOracle::texture_albedo`] together: an
+    /// oracle that casts camera rays through the [`ALBEDO_TAPS`] for both casts them once.
+    fn footprint(&self, p: PixelCoord, centre: ObjectId) -> Footprint {
+        Footprint {
+            mixed: self.footprint_mixed(p, centre),
+            albedo: if self.has_textures() {
+                self.texture_albedo(p)
+            } else {
+                None
+            },
+        }
+    }
+}
+
+/// What a pixel's footprint holds ([`PixelOracle::footprint`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Footprint {
+    /// [`PixelOracle::footprint_mixed`].
+    pub mixed: bool,
+    /// [`PixelOracle::texture_albedo`] (always `None` without textures).
+    pub albedo: Option<Rgb>,
 }
 
 /// One pixel's estimate (a mean of paths) and how far to trust it.
@@ -137,6 +158,20 @@ pub fn texture_albedo_map(oracle: &impl PixelOracle) -> Option<Vec<Option<Rgb>>>
         return None;
     }
     Some(every_pixel(oracle, |p| oracle.texture_albedo(p)))
+}
+
+/// The mean albedo over a footprint from the albedos its [`ALBEDO_TAPS`] see (`tap(k)`,
+/// `None` off a textured Lambertian surface): two opposite corners first; where they
+/// agree within 1 % (a checker's interior, a texture smooth at the pixel's scale) their
+/// mean is the footprint's and the other two taps are not asked for.
+fn footprint_albedo(tap: impl Fn(usize) -> Option<Vec3>) -> Option<Rgb> {
+    let a = tap(0)?;
+    let d = tap(3)?;
+    if (a - d).abs().max_element() <= 0.01 * a.max(d).max_element() {
+        return Some((a + d) * 0.5);
+    }
+    let (b, c) = (tap(1)?, tap(2)?);
+    Some((a + b + c + d) / 4.0)
 }
 
 /// Pixels are traced in batches of this many; cancellation is checked between batches.
@@ -260,36 +295,45 @@ pub fn object_id_map(oracle: &impl PixelOracle) -> Image<ObjectId> {
 }
 
 /// What the progressive loop knows of every pixel before tracing any (§4.1 and our
-/// extensions): the object-id map, the normals and the mixed footprints.
+/// extensions): the object-id map, the normals, the mixed footprints and the texture
+/// albedos.
 pub struct PixelAnalysis {
     pub ids: Image<ObjectId>,
     /// [`PixelOracle::surface_normal`], row-major.
     pub normals: Vec<Vec3>,
     /// [`PixelOracle::footprint_mixed`] against the pixel's own id, row-major.
     pub mixed: Vec<bool>,
+    /// [`texture_albedo_map`]: `None` when the oracle has no texture.
+    pub albedo: Option<Vec<Option<Rgb>>>,
 }
 
 /// [`PixelAnalysis`] in one parallel pass: per pixel the centre ray ([`PixelOracle::centre_hit`])
-/// and the footprint's taps, five camera rays in all.
+/// and the footprint's taps ([`PixelOracle::footprint`]), five camera rays in all.
 #[must_use]
 pub fn analysis_maps(oracle: &impl PixelOracle) -> PixelAnalysis {
     let (w, h) = oracle.size();
     let per_pixel = every_pixel(oracle, |p| {
         let (id, normal) = oracle.centre_hit(p);
-        (id, normal, oracle.footprint_mixed(p, id))
+        (id, normal, oracle.footprint(p, id))
     });
-    let mut ids = Vec::with_capacity(per_pixel.len());
-    let mut normals = Vec::with_capacity(per_pixel.len());
-    let mut mixed = Vec::with_capacity(per_pixel.len());
-    for (id, normal, m) in per_pixel {
+    let n = per_pixel.len();
+    let mut ids = Vec::with_capacity(n);
+    let mut normals = Vec::with_capacity(n);
+    let mut mixed = Vec::with_capacity(n);
+    let mut albedo = oracle.has_textures().then(|| Vec::with_capacity(n));
+    for (id, normal, f) in per_pixel {
         ids.push(id);
         normals.push(normal);
-        mixed.push(m);
+        mixed.push(f.mixed);
+        if let Some(a) = albedo.as_mut() {
+            a.push(f.albedo);
+        }
     }
     PixelAnalysis {
         ids: Image::from_vec(w, h, ids).expect("size matches by construction"),
         normals,
         mixed,
+        albedo,
     }
 }
 
@@ -656,7 +700,11 @@ impl PathTracer {
     /// pixel `p` hits; `None` for any other material or a miss.
     fn albedo_at(&self, p: PixelCoord, jitter: glam::Vec2) -> Option<Vec3> {
         let d = self.camera.direction(p.x, p.y, jitter);
-        let hit = self.camera_hit(p.x, p.y, d)?;
+        self.albedo_of(d, self.camera_hit(p.x, p.y, d)?)
+    }
+
+    /// [`Self::albedo_at`] of a camera ray along `d` that hit `hit`.
+    fn albedo_of(&self, d: Vec3, hit: bvh::Hit) -> Option<Vec3> {
         let s = self.geo.surface(self.camera.origin, d, &hit);
         match self.materials.get(s.info.material as usize)? {
             ResolvedMaterial::Textured(t) => Some(texture::eval(t, s.p, s.uv, &self.images)),
@@ -691,17 +739,7 @@ impl PixelOracle for PathTracer {
         if !self.features.has_texture {
             return None;
         }
-        // Two opposite corners first: where they agree within 1 % (a checker's interior, a
-        // texture smooth at the pixel's scale) their mean is the footprint's, and the other
-        // two rays are saved; elsewhere all four taps.
-        let [t0, t1, t2, t3] = ALBEDO_TAPS;
-        let a = self.albedo_at(p, t0)?;
-        let d = self.albedo_at(p, t3)?;
-        if (a - d).abs().max_element() <= 0.01 * a.max(d).max_element() {
-            return Some((a + d) * 0.5);
-        }
-        let (b, c) = (self.albedo_at(p, t1)?, self.albedo_at(p, t2)?);
-        Some((a + b + c + d) / 4.0)
+        footprint_albedo(|k| self.albedo_at(p, ALBEDO_TAPS[k]))
     }
 
     fn radiance_albedo_with(&self, p: PixelCoord, samples: u32, seed: u64) -> (Rgb, Option<Rgb>) {
@@ -734,6 +772,23 @@ impl PixelOracle for PathTracer {
 
     fn footprint_mixed(&self, p: PixelCoord, centre: ObjectId) -> bool {
         ALBEDO_TAPS.iter().any(|&t| self.object_at(p, t) != centre)
+    }
+
+    /// Each tap's camera ray cast once, for its object and (textured scenes) its albedo.
+    fn footprint(&self, p: PixelCoord, centre: ObjectId) -> Footprint {
+        let taps = ALBEDO_TAPS.map(|t| {
+            let d = self.camera.direction(p.x, p.y, t);
+            (d, self.camera_hit(p.x, p.y, d))
+        });
+        let mixed = taps
+            .iter()
+            .any(|(_, h)| h.as_ref().map_or(BACKGROUND_ID, |h| self.object_of(h)) != centre);
+        let albedo = if self.features.has_texture {
+            footprint_albedo(|k| taps[k].1.and_then(|h| self.albedo_of(taps[k].0, h)))
+        } else {
+            None
+        };
+        Footprint { mixed, albedo }
     }
 
     fn surface_normal(&self, p: PixelCoord) -> Vec3 {
@@ -809,7 +864,9 @@ mod tests {
             ids,
             normals,
             mixed,
+            albedo,
         } = analysis_maps(&t);
+        assert!(albedo.is_none(), "no texture, no albedo map");
         assert_eq!(ids, object_id_map(&t), "the centre ray is the id map's ray");
         for (i, n) in normals.iter().enumerate() {
             let p = PixelCoord::new((i % 32) as u32, (i / 32) as u32);
@@ -842,6 +899,13 @@ mod tests {
         assert!(t.has_textures());
         let map = texture_albedo_map(&t).expect("a textured scene has a map");
         assert_eq!(map.len(), 32 * 32);
+        let analysis = analysis_maps(&t);
+        assert_eq!(
+            analysis.albedo.as_ref(),
+            Some(&map),
+            "the analysis casts each tap once for its object and its albedo, same albedos"
+        );
+        assert_eq!(analysis.mixed, analysis_maps(&PathTracer::new(&checker_floor(false))).mixed);
         let floor_id = t.object_id(PixelCoord::new(0, 0));
         let (mut inside, mut edge, mut none) = (0, 0, 0);
         for (i, a) in map.iter().enumerate() {

@@ -683,7 +683,7 @@ impl Importer<'_> {
                     }
                     _ => p.float("eta", 1.5)?,
                 };
-                if !(eta > 0.0) {
+                if eta.is_nan() || eta <= 0.0 {
                     return Err(pos.error(format!("coateddiffuse eta must be > 0, got {eta}")));
                 }
                 if p.get("albedo").is_some() || p.get("g").is_some() {
@@ -715,7 +715,7 @@ impl Importer<'_> {
                 if ty == "thindielectric" {
                     self.warn(pos, "thindielectric: rendered as a solid dielectric");
                 }
-                if !(eta > 0.0) {
+                if eta.is_nan() || eta <= 0.0 {
                     return Err(pos.error(format!("dielectric eta must be > 0, got {eta}")));
                 }
                 MaterialDoc::Dielectric(DielectricDoc {
@@ -877,7 +877,7 @@ impl Importer<'_> {
                 // axis, smoothstep in cos θ down to zero at coneangle.
                 let cone = p.float("coneangle", 30.0)?;
                 let delta = p.float("conedelta", 5.0)?;
-                if !(0.0..=180.0).contains(&cone) || !(delta >= 0.0) {
+                if !(0.0..=180.0).contains(&cone) || delta.is_nan() || delta < 0.0 {
                     return Err(pos.error(format!(
                         "spot light: coneangle must be in [0, 180] and conedelta ≥ 0, got {cone} and {delta}"
                     )));
@@ -970,7 +970,7 @@ impl Importer<'_> {
         let (positions, normals, uvs, indices) = match ty {
             "sphere" => {
                 let r = p.float("radius", 1.0)?;
-                if !(r > 0.0) {
+                if r.is_nan() || r <= 0.0 {
                     return Err(pos.error(format!("sphere radius must be > 0, got {r}")));
                 }
                 if p.get("zmin").is_some() || p.get("zmax").is_some() || p.get("phimax").is_some() {
@@ -1090,7 +1090,7 @@ impl Importer<'_> {
             }
         };
         let ipos = p.get("indices").map_or(pos, |q| &q.pos).clone();
-        if idx.len() % per != 0 {
+        if !idx.len().is_multiple_of(per) {
             return Err(ipos.error(format!(
                 "\"indices\" must hold a multiple of {per} numbers, got {}",
                 idx.len()

@@ -172,7 +172,6 @@ pub fn run_reporting<O: PixelOracle>(
     if w < 2 || h < 2 {
         return r.trace_whole(ids, on_frame, cancel);
     }
-    r.analyse_textures();
     let first = r.first_trace(&seeds, cancel)?;
     let mut tri = Triangulator::new();
     let t = Instant::now();
@@ -312,25 +311,19 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     }
 
     /// §4.1: the object-id map (one primary ray per pixel) and the surface normals beside
-    /// it, the pixels whose footprint spans several objects, and the first sample set
-    /// (contour pixels of the id map, then uniform ones), as pixel indices.
+    /// it, the pixels whose footprint spans several objects, the texture albedos (textured
+    /// scenes only: the texture's detail comes from them, mesh.rs `gouraud`) and the first
+    /// sample set (contour pixels of the id map, then uniform ones), as pixel indices.
     fn analyse(&mut self) -> (Arc<Image<ObjectId>>, Vec<usize>) {
         let t = Instant::now();
         let maps = tracer::analysis_maps(self.oracle);
         let ids = Arc::new(maps.ids);
         (self.px.normals, self.px.mixed) = (maps.normals, maps.mixed);
+        self.px.albedo = maps.albedo;
         let seeds = initial_samples(&ids, self.s.initial_rate, self.s.seed);
         let seeds = seeds.iter().map(|&p| self.px.index(p)).collect();
         self.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
         (ids, seeds)
-    }
-
-    /// Textured scenes only: the texture's detail comes from this map (mesh.rs
-    /// `gouraud`); part of the analysis, like the object ids.
-    fn analyse_textures(&mut self) {
-        let t = Instant::now();
-        self.px.albedo = tracer::texture_albedo_map(self.oracle);
-        self.stats.analysis_ms += t.elapsed().as_secs_f64() * 1e3;
     }
 
     /// The classification oracle of `Settings::oracle`. The perceptual one discounts noise
