@@ -905,7 +905,10 @@ mod tests {
             Some(&map),
             "the analysis casts each tap once for its object and its albedo, same albedos"
         );
-        assert_eq!(analysis.mixed, analysis_maps(&PathTracer::new(&checker_floor(false))).mixed);
+        assert_eq!(
+            analysis.mixed,
+            analysis_maps(&PathTracer::new(&checker_floor(false))).mixed
+        );
         let floor_id = t.object_id(PixelCoord::new(0, 0));
         let (mut inside, mut edge, mut none) = (0, 0, 0);
         for (i, a) in map.iter().enumerate() {

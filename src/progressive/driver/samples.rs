@@ -36,6 +36,8 @@ pub(super) struct SampleSet {
     /// where traced (mesh.rs `gouraud`).
     pub albedo: Option<Vec<Option<Rgb>>>,
     pub traced: Vec<bool>,
+    /// Paths each estimate averages (the scene's samples per pixel).
+    pub paths: u32,
     /// Iteration at which a pixel was traced (`u32::MAX`: never).
     when: Vec<u32>,
     pub count: u64,
@@ -60,6 +62,7 @@ impl SampleSet {
             resolved: vec![true; n],
             albedo: None,
             traced: vec![false; n],
+            paths: 1,
             when: vec![u32::MAX; n],
             count: 0,
             rays: 0,
@@ -190,6 +193,7 @@ impl SampleSet {
                 normals: &self.normals,
                 albedo: self.albedo.as_deref(),
                 averaging,
+                paths: self.paths,
             };
             vertex_values(tris, &samples, &mut self.vertex, &mut self.resolved);
         }
