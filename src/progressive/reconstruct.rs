@@ -363,8 +363,6 @@ fn black_by_chance(mean: f32, variance: f32, paths: u32) -> bool {
 /// ([`black_by_chance`]).
 const BLACK_BY_CHANCE: f64 = 0.5;
 
-/// The bilateral mean around vertex `k`, ring by ring until the effective number of
-/// vertices averaged, (Σw)² / Σw², reaches [`Averaging::target_count`].
 /// Which vertices one search has already met: a stamp per vertex, so a search costs
 /// what it visits, not a scan of its list per neighbour (rings of 100 vertices).
 struct Visited {
@@ -405,7 +403,8 @@ impl Visited {
     }
 }
 
-/// The reconstructed value of vertex `k`, and whether it reached its [`Averaging::target_count`].
+/// The reconstructed value of vertex `k`, and whether it reached its [`Averaging::target_count`]
+/// (an effective number of vertices averaged, (Σw)² / Σw²).
 ///
 /// Rings of same-surface neighbours are added while the plane fits them: the intercepts of
 /// successive rings must keep a common interval of ±[`ICI_SIGMAS`] standard deviations
