@@ -149,8 +149,6 @@ pub fn seconds(ms: f64) -> String {
     }
 }
 
-/// Follows one render's frames and estimates the time left after each.
-#[derive(Debug)]
 /// The time left of a single pass over every pixel (the reference mode's, or a render
 /// traced whole because its paths are too cheap for the loop), told `(done, total)` after
 /// each batch from the tracing threads: the rest at the rate since the pass's first report,
@@ -183,6 +181,8 @@ impl PassEta {
     }
 }
 
+/// Follows one render's frames and estimates the time left after each.
+#[derive(Debug)]
 pub struct EtaTracker {
     t0: f64,
     max_iterations: u32,

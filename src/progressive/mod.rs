@@ -139,10 +139,28 @@ pub struct Frame {
     pub preview: bool,
 }
 
-#[cfg(test)]
 impl Frame {
+    /// The one frame of a render whose every pixel was traced in a single pass (the
+    /// reference mode, or a render too cheap for the loop): `image` with its object-id
+    /// map, every pixel new, no distance or classes.
+    fn traced_whole(image: LinearImage, objects: Arc<Image<ObjectId>>, stats: RenderStats) -> Self {
+        let (w, h) = (image.width(), image.height());
+        Frame {
+            iteration: 0,
+            image,
+            samples: Image::filled(w, h, SampleCell::New),
+            distance: None,
+            classes: Image::filled(w, h, ClassCell::None),
+            objects,
+            stats,
+            last: true,
+            preview: false,
+        }
+    }
+
     /// A 1×1 frame of iteration `iteration` whose mean distance is `d` (tests of what
     /// consumes frames: the time left, the service's jobs).
+    #[cfg(test)]
     pub(crate) fn fixture(iteration: u32, d: f64, last: bool) -> Self {
         Frame {
             iteration,
@@ -296,17 +314,8 @@ fn render_reference(
         trace_ms: ms,
         ..RenderStats::default()
     };
-    let frame = Frame {
-        iteration: 0,
-        image,
-        samples: Image::filled(w, h, SampleCell::New),
-        distance: None,
-        classes: Image::filled(w, h, ClassCell::None),
-        objects: Arc::new(tracer::object_id_map(oracle)),
-        stats,
-        last: true,
-        preview: false,
-    };
+    let objects = Arc::new(tracer::object_id_map(oracle));
+    let frame = Frame::traced_whole(image, objects, stats);
     on_frame(&frame);
     Ok(frame)
 }

@@ -150,16 +150,6 @@ pub const ALBEDO_TAPS: [glam::Vec2; 4] = [
     glam::Vec2::new(0.75, 0.75),
 ];
 
-/// [`PixelOracle::texture_albedo`] of every pixel (row-major, in parallel), or `None` when
-/// the oracle has no texture.
-#[must_use]
-pub fn texture_albedo_map(oracle: &impl PixelOracle) -> Option<Vec<Option<Rgb>>> {
-    if !oracle.has_textures() {
-        return None;
-    }
-    Some(every_pixel(oracle, |p| oracle.texture_albedo(p)))
-}
-
 /// The mean albedo over a footprint from the albedos its [`ALBEDO_TAPS`] see (`tap(k)`,
 /// `None` off a textured Lambertian surface): two opposite corners first; where they
 /// agree within 1 % (a checker's interior, a texture smooth at the pixel's scale) their
@@ -303,7 +293,8 @@ pub struct PixelAnalysis {
     pub normals: Vec<Vec3>,
     /// [`PixelOracle::footprint_mixed`] against the pixel's own id, row-major.
     pub mixed: Vec<bool>,
-    /// [`texture_albedo_map`]: `None` when the oracle has no texture.
+    /// [`PixelOracle::texture_albedo`] per pixel, row-major: `None` when the oracle has no
+    /// texture.
     pub albedo: Option<Vec<Option<Rgb>>>,
 }
 
@@ -809,6 +800,15 @@ impl PixelOracle for PathTracer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`PixelOracle::texture_albedo`] of every pixel (row-major, in parallel), or `None` when
+    /// the oracle has no texture.
+    fn texture_albedo_map(oracle: &impl PixelOracle) -> Option<Vec<Option<Rgb>>> {
+        if !oracle.has_textures() {
+            return None;
+        }
+        Some(every_pixel(oracle, |p| oracle.texture_albedo(p)))
+    }
     use crate::scene::{Camera, Light};
 
     /// A checkered floor (squares of 0.6, albedo 0.8 / 0.2) seen from straight above, lit by
@@ -855,6 +855,14 @@ mod tests {
             }],
             (2, 1, 5),
         )
+    }
+
+    #[test]
+    fn an_estimate_counts_the_rays_its_paths_cast() {
+        // 2 paths of one bounce on the lit floor: each a camera ray, a shadow ray towards
+        // the directional light and the bounce ray (which ends the path, hit or miss).
+        let t = PathTracer::new(&checker_floor(false));
+        assert_eq!(t.estimate(PixelCoord::new(5, 5)).rays, 2 * 3);
     }
 
     #[test]

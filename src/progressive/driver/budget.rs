@@ -14,9 +14,9 @@ pub enum Stop {
     /// The triangles still open were traced whole, which cost less than another
     /// iteration (`Plan::finish_if_cheaper`).
     TracedRest,
-    /// Every pixel was traced after the first frame: the paths are so cheap here that
-    /// the loop's own work would have cost more than the pixels it saves
-    /// (`plan::loop_pays`). The frame is the reference.
+    /// Every pixel was traced before any of the loop's work: the paths are so cheap here
+    /// that the loop's own work would have cost more than the pixels it saves
+    /// (`cost::loop_pays`). The frame is the reference.
     ReferenceCheaper,
     MaxPixels,
     MaxTime,

@@ -12,8 +12,8 @@
 use super::budget::Stop;
 use super::Settings;
 use crate::cancel::{CancelToken, Cancelled};
-use crate::progressive::{ClassCell, Frame, IterationStats, RenderStats, SampleCell};
-use crate::raster::{Image, PixelCoord};
+use crate::progressive::{Frame, IterationStats, RenderStats};
+use crate::raster::PixelCoord;
 use crate::tracer::{self, PixelOracle};
 use std::sync::Arc;
 use std::time::Instant;
@@ -84,17 +84,7 @@ pub(super) fn reference<O: PixelOracle>(
         stop_reason: Some(Stop::ReferenceCheaper.as_str().to_string()),
         ..RenderStats::default()
     };
-    Ok(Frame {
-        iteration: 0,
-        image,
-        samples: Image::filled(w, h, SampleCell::New),
-        distance: None,
-        classes: Image::filled(w, h, ClassCell::None),
-        objects,
-        stats,
-        last: true,
-        preview: false,
-    })
+    Ok(Frame::traced_whole(image, objects, stats))
 }
 
 /// The pixels whose rays [`loop_pays`] counts: every [`GRID_STEP`]th pixel of every

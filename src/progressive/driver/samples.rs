@@ -41,8 +41,6 @@ pub(super) struct SampleSet {
     /// Iteration at which a pixel was traced (`u32::MAX`: never).
     when: Vec<u32>,
     pub count: u64,
-    /// Rays the traced estimates cast ([`Estimate::rays`]): what a pixel costs here.
-    pub rays: u64,
     /// Already in this iteration's work list.
     queued: Vec<bool>,
 }
@@ -65,7 +63,6 @@ impl SampleSet {
             paths: 1,
             when: vec![u32::MAX; n],
             count: 0,
-            rays: 0,
             queued: vec![false; n],
         }
     }
@@ -94,7 +91,6 @@ impl SampleSet {
         self.traced[i] = true;
         self.when[i] = iter;
         self.count += 1;
-        self.rays += u64::from(e.rays);
     }
 
     /// The traced pixels, in raster order (the metric's seeds).
