@@ -18,7 +18,7 @@
 //! 320×240, 1024×768 and 2048² (medians of `RUNS`); a render's start is when a worker
 //! begins (the service adds its queue and the scene's parse before it).
 //!
-//! Run: `cargo bench --bench eta` (3–5 minutes on 2 cores). `ETA_TRACE=FILE` appends
+//! Run: `cargo bench --bench eta` (4–6 minutes on 2 cores). `ETA_TRACE=FILE` appends
 //! every frame's statistics to FILE as JSON lines (scene, run, elapsed ms, estimate, the
 //! iteration's statistics), to replay the estimator on them.
 
@@ -32,7 +32,9 @@ use glimpse::tracer::PathTracer;
 use std::io::Write;
 use std::time::Instant;
 
-const RUNS: usize = 3;
+/// Runs per bundled scene: a run of 0.2–1 s on a shared machine is noisy (one cell read
+/// 18 % and 36 % in two runs), so the median needs more than three.
+const RUNS: usize = 9;
 const AT: [f64; 3] = [0.25, 0.5, 0.75];
 
 fn median(mut v: Vec<f64>) -> f64 {

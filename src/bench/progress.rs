@@ -1,8 +1,12 @@
 //! Where a `glimpse bench` run is: which scene, at which stage or viewing condition, how
-//! many scenes are done of how many, and the time so far. On a terminal, one bar on
-//! stderr that redraws itself; otherwise (a log, CI) one plain line per stage.
+//! many scenes are done of how many, the time so far and the time left at the pace so
+//! far (scenes differ in cost, so it is "about"; none before the first scene is done).
+//! On a terminal, one bar on stderr that redraws itself; otherwise (a log, CI) one plain
+//! line per stage.
 
 use crate::progressive::eta::seconds;
+use indicatif::ProgressState;
+use std::fmt::Write;
 use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -23,8 +27,12 @@ impl Progress {
         let bar = std::io::stderr().is_terminal().then(|| {
             let bar = indicatif::ProgressBar::new(total as u64);
             if let Ok(style) = indicatif::ProgressStyle::with_template(
-                "{spinner} [{bar:24}] {pos}/{len} scenes, {elapsed} so far: {msg}",
+                "{spinner} [{bar:24}] {pos}/{len} scenes, {elapsed} so far{left}: {msg}",
             ) {
+                let style = style.with_key("left", |s: &ProgressState, w: &mut dyn Write| {
+                    let left = time_left(s.pos(), s.len(), s.elapsed().as_secs_f64());
+                    let _ = w.write_str(&left);
+                });
                 bar.set_style(style.progress_chars("=> "));
             }
             bar.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -91,12 +99,26 @@ impl Progress {
     }
 }
 
-/// A plain progress line: "bench: [2/5 scenes done, 1 min 3 s so far] cornell-box: at 45 ppd".
+/// A plain progress line: "bench: [2/5 scenes done, 1 min 3 s so far, about 1 min 35 s
+/// left] cornell-box: at 45 ppd".
 fn line(done: usize, total: usize, what: &str, elapsed_s: f64) -> String {
     format!(
-        "bench: [{done}/{total} scenes done, {} so far] {what}",
-        seconds(elapsed_s * 1e3)
+        "bench: [{done}/{total} scenes done, {} so far{}] {what}",
+        seconds(elapsed_s * 1e3),
+        time_left(done as u64, Some(total as u64), elapsed_s)
     )
+}
+
+/// ", about 1 min left" at the mean pace of the scenes done; empty before the first is
+/// done (nothing to go on) and once all are.
+fn time_left(done: u64, total: Option<u64>, elapsed_s: f64) -> String {
+    match total {
+        Some(total) if done > 0 && done < total => {
+            let left_s = elapsed_s / done as f64 * (total - done) as f64;
+            format!(", about {} left", seconds(left_s * 1e3))
+        }
+        _ => String::new(),
+    }
 }
 
 #[cfg(test)]
@@ -107,11 +129,15 @@ mod tests {
     fn a_plain_line_says_where_and_how_long() {
         assert_eq!(
             line(2, 5, "cornell-box: at 45 ppd", 63.2),
-            "bench: [2/5 scenes done, 1 min 3 s so far] cornell-box: at 45 ppd"
+            "bench: [2/5 scenes done, 1 min 3 s so far, about 1 min 35 s left] cornell-box: at 45 ppd"
         );
         assert_eq!(
             line(0, 13, "door (256x256, 64 spp)", 0.4),
             "bench: [0/13 scenes done, 400 ms so far] door (256x256, 64 spp)"
+        );
+        assert_eq!(
+            line(3, 3, "done", 10.0),
+            "bench: [3/3 scenes done, 10.0 s so far] done"
         );
     }
 
