@@ -54,8 +54,10 @@ const MARGIN_T0: (f32, f32) = (0.25, 2.0);
 
 /// Range scale of the bilateral weight, in standard deviations of the difference of two
 /// estimates: a neighbour that agrees within its noise keeps most of its weight
-/// (E[exp(−z²/2κ²)] ≈ 0.89 for z ~ N(0, 1)), a real step of a few σ loses it.
-const RANGE_SIGMAS: f32 = 2.0;
+/// (E[exp(−z²/2κ²)] ≈ 0.83 for z ~ N(0, 1)), a real step of a few σ loses it. With ICI at
+/// ±1, 1.5 kept objects' colours better than 2 (and 3) on a generated corpus and the
+/// bundled scenes, Q unchanged or lower (README, "Where we departed").
+const RANGE_SIGMAS: f32 = 1.5;
 
 /// Rings of the Delaunay graph searched at most (a vertex has ~6 neighbours per ring).
 const MAX_RINGS: usize = 6;
