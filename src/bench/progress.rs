@@ -139,6 +139,9 @@ mod tests {
             line(3, 3, "done", 10.0),
             "bench: [3/3 scenes done, 10.0 s so far] done"
         );
+        // The bar's own key: a bar of unknown length has no time left to give.
+        assert_eq!(time_left(1, None, 5.0), "");
+        assert_eq!(time_left(1, Some(3), 5.0), ", about 10.0 s left");
     }
 
     #[test]

@@ -800,6 +800,7 @@ impl PixelOracle for PathTracer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::{Camera, Light};
 
     /// [`PixelOracle::texture_albedo`] of every pixel (row-major, in parallel), or `None` when
     /// the oracle has no texture.
@@ -809,7 +810,6 @@ mod tests {
         }
         Some(every_pixel(oracle, |p| oracle.texture_albedo(p)))
     }
-    use crate::scene::{Camera, Light};
 
     /// A checkered floor (squares of 0.6, albedo 0.8 / 0.2) seen from straight above, lit by
     /// a vertical directional light, with a plain diffuse sphere on it; direct light only,

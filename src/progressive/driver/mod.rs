@@ -294,12 +294,10 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         let start = Instant::now();
         let (w, h) = oracle.size();
         let mode = s.oracle.mode();
-        let mut px = SampleSet::new(w, h);
-        px.paths = s.samples_per_pixel;
         Self {
             oracle,
             s,
-            px,
+            px: SampleSet::new(w, h, s.samples_per_pixel),
             budget: Budget::new(s.max_pixels, s.max_time, s.max_iterations, start),
             start,
             stats: RenderStats {

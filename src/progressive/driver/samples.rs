@@ -37,7 +37,7 @@ pub(super) struct SampleSet {
     pub albedo: Option<Vec<Option<Rgb>>>,
     pub traced: Vec<bool>,
     /// Paths each estimate averages (the scene's samples per pixel).
-    pub paths: u32,
+    paths: u32,
     /// Iteration at which a pixel was traced (`u32::MAX`: never).
     when: Vec<u32>,
     pub count: u64,
@@ -46,7 +46,9 @@ pub(super) struct SampleSet {
 }
 
 impl SampleSet {
-    pub(super) fn new(w: u32, h: u32) -> Self {
+    /// An image of `w` × `h` pixels, none traced yet, whose estimates will each average
+    /// `paths` paths.
+    pub(super) fn new(w: u32, h: u32, paths: u32) -> Self {
         let n = w as usize * h as usize;
         Self {
             w,
@@ -60,7 +62,7 @@ impl SampleSet {
             resolved: vec![true; n],
             albedo: None,
             traced: vec![false; n],
-            paths: 1,
+            paths,
             when: vec![u32::MAX; n],
             count: 0,
             queued: vec![false; n],
@@ -240,7 +242,7 @@ mod tests {
 
     #[test]
     fn a_pixel_is_queued_once_and_layers_tell_new_from_old() {
-        let mut s = SampleSet::new(3, 2);
+        let mut s = SampleSet::new(3, 2, 1);
         let mut work = Vec::new();
         assert!(s.push(4, &mut work));
         assert!(!s.push(4, &mut work), "queued already");
