@@ -20,7 +20,7 @@
 //!
 //! Run: `cargo bench --bench eta` (4–6 minutes on 2 cores). `ETA_TRACE=FILE` appends
 //! every frame's statistics to FILE as JSON lines (scene, run, elapsed ms, estimate, the
-//! iteration's statistics), to replay the estimator on them.
+//! iteration's statistics, the noise twins' mean distance), to replay the estimator on them.
 
 use glimpse::bench::corpus;
 use glimpse::cancel::CancelToken;
@@ -76,6 +76,7 @@ fn observe(scene: &Scene, run: usize) -> (Vec<(f64, Eta)>, f64, usize) {
                 "spp": scene.render.samples_per_pixel,
                 "pixels": u64::from(f.stats.width) * u64::from(f.stats.height),
                 "it": f.stats.per_iteration.last(),
+                "noise": f.stats.noise_distance_mean,
             });
             writeln!(out, "{line}").expect("trace written");
         }
