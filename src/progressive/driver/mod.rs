@@ -146,146 +146,256 @@ pub fn run_reporting<O: PixelOracle>(
     if cancel.is_cancelled() {
         return Err(Cancelled);
     }
-    let (start, (w, h)) = (Instant::now(), oracle.size());
+    let start = Instant::now();
+    let (preview_ms, probe_ms) =
+        match before_the_loop(oracle, s, start, on_frame, on_pixels, cancel)? {
+            Ahead::Loop {
+                preview_ms,
+                probe_ms,
+            } => (preview_ms, probe_ms),
+            Ahead::TracedWhole(frame) => return Ok(*frame),
+        };
+    let mut r = Run::new(oracle, s);
+    r.start = start;
+    r.stats.trace_ms = preview_ms;
+    r.stats.analysis_ms = probe_ms;
+    let (ids, seeds) = r.analyse();
+    let (w, h) = oracle.size();
+    if w < 2 || h < 2 {
+        return r.trace_whole(ids, on_frame, cancel);
+    }
+    let first = r.first_trace(&seeds, cancel)?;
+    let mut st = r.first_mesh(&first, ids.pixels());
+    let mut classifier = r.classifier(judge);
+    loop {
+        if cancel.is_cancelled() {
+            return Err(Cancelled);
+        }
+        // 1. Classify.
+        let mut c = r.classify(&mut st, &mut *classifier, ids.pixels());
+        // 2. Plan: what the classes ask for, or the rest at once when that is cheaper.
+        let (plan, finishing) = r.plan(&mut st, &mut c, ids.pixels());
+        // 3. Stop?
+        let stop = r.stop(&st, &plan, finishing);
+        // 4. Emit the frame.
+        let image = std::mem::replace(&mut st.cur, Image::filled(0, 0, Rgb::ZERO));
+        let frame = r.frame(
+            st.iter,
+            image,
+            c,
+            &st.mesh.raster,
+            classifier.t1(),
+            stop,
+            &ids,
+        );
+        on_frame(&frame);
+        if stop.is_some() {
+            return Ok(frame);
+        }
+        st.cur = frame.image;
+        if st.iter == 0 && classifier.wants_noise() {
+            r.noise_twin(
+                &first,
+                &st.mesh,
+                &st.tri,
+                ids.pixels(),
+                &st.cur,
+                &mut *classifier,
+                cancel,
+            )?;
+        }
+        // 5. Trace, re-triangulate, shade, fill.
+        r.advance(&mut st, &plan, &*classifier, ids.pixels(), cancel)?;
+        st.finished = finishing;
+    }
+}
+
+/// How a render begins, before the loop's per-pixel state exists.
+enum Ahead {
+    /// The loop runs; the preview's and the cost probe's times.
+    Loop { preview_ms: f64, probe_ms: f64 },
+    /// The paths are too cheap for the loop: the render was traced whole ([`cost`]).
+    TracedWhole(Box<Frame>),
+}
+
+/// A preview of a large image (streamed before anything else, [`preview`]), then the cost
+/// probe, which may trace the render whole.
+fn before_the_loop<O: PixelOracle>(
+    oracle: &O,
+    s: &Settings,
+    start: Instant,
+    on_frame: &mut dyn FnMut(&Frame),
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
+    cancel: &CancelToken,
+) -> Result<Ahead, Cancelled> {
+    let (w, h) = oracle.size();
     // Before the render's per-pixel state, which takes ~0.1 s to allocate at 2048².
-    let preview = if w as usize * h as usize >= preview::FROM_PIXELS {
+    let preview_ms = if w as usize * h as usize >= preview::FROM_PIXELS {
         let f = preview::frame(oracle, s.samples_per_pixel, s.seed, s.oracle.mode(), cancel)?;
         on_frame(&f);
         f.stats.trace_ms
     } else {
         0.0
     };
-    let probe_ms = match cost::probe(oracle, s, cancel)? {
-        cost::Verdict::Loop { probe_ms } => probe_ms,
+    Ok(match cost::probe(oracle, s, cancel)? {
+        cost::Verdict::Loop { probe_ms } => Ahead::Loop {
+            preview_ms,
+            probe_ms,
+        },
         cost::Verdict::Reference { probe_ms } => {
-            let before = preview + probe_ms;
+            let before = preview_ms + probe_ms;
             let f = cost::reference(oracle, s, start, before, on_pixels, cancel)?;
             on_frame(&f);
-            return Ok(f);
+            Ahead::TracedWhole(Box::new(f))
         }
-    };
-    let mut r = Run::new(oracle, s);
-    r.start = start;
-    r.stats.trace_ms = preview;
-    r.stats.analysis_ms = probe_ms;
-    let (ids, seeds) = r.analyse();
-    if w < 2 || h < 2 {
-        return r.trace_whole(ids, on_frame, cancel);
-    }
-    let first = r.first_trace(&seeds, cancel)?;
-    let mut tri = Triangulator::new();
-    let t = Instant::now();
-    tri.insert(&first);
-    let mut mesh = Mesh::of(&tri, w, h);
-    let mut cur = r.shaded(&mesh, &tri, ids.pixels());
-    r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
-    let mut classifier = r.classifier(judge);
+    })
+}
 
-    let mut contours = ContourWalker::new(w, r.px.n);
-    let mut prev: Option<LinearImage> = None;
-    let mut last_distance: Option<Image<f32>> = None;
-    let mut iter = 0u32;
-    // The open triangles were traced whole ([`Plan::finish_if_cheaper`]).
-    let mut finished = false;
-    loop {
-        if cancel.is_cancelled() {
-            return Err(Cancelled);
+/// What the loop carries from one iteration to the next.
+struct LoopState {
+    tri: Triangulator,
+    mesh: Mesh,
+    /// This iteration's picture, and the previous one (the classifier compares them).
+    cur: LinearImage,
+    prev: Option<LinearImage>,
+    /// The last distance map measured, shown once nothing is left to judge.
+    last_distance: Option<Image<f32>>,
+    contours: ContourWalker,
+    iter: u32,
+    /// The open triangles were traced whole ([`Plan::finish_if_cheaper`]).
+    finished: bool,
+}
+
+impl<'a, O: PixelOracle> Run<'a, O> {
+    /// The first sample set triangulated and shaded: the state of iteration 0.
+    fn first_mesh(&mut self, first: &[PixelCoord], ids: &[ObjectId]) -> LoopState {
+        let (w, h) = self.oracle.size();
+        let t = Instant::now();
+        let mut tri = Triangulator::new();
+        tri.insert(first);
+        let mesh = Mesh::of(&tri, w, h);
+        let cur = self.shaded(&mesh, &tri, ids);
+        self.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
+        LoopState {
+            tri,
+            mesh,
+            cur,
+            prev: None,
+            last_distance: None,
+            contours: ContourWalker::new(w, self.px.n),
+            iter: 0,
+            finished: false,
         }
-        // 1. Classify.
-        let mut c = if r.px.all_traced() || finished {
-            // Everything is exact, or what was not is now: nothing left to judge.
-            let mut c = Classification::uniform(TriangleClass::Final, mesh.tris.len(), true);
-            c.distance = last_distance.clone();
+    }
+
+    /// Phase 1: each triangle's class; all final once every pixel is traced or the rest
+    /// was traced whole (nothing is left to judge).
+    fn classify(
+        &mut self,
+        st: &mut LoopState,
+        classifier: &mut dyn Classifier,
+        ids: &[ObjectId],
+    ) -> Classification {
+        let c = if self.px.all_traced() || st.finished {
+            let mut c = Classification::uniform(TriangleClass::Final, st.mesh.tris.len(), true);
+            c.distance = st.last_distance.clone();
             c
         } else {
             let view = View {
-                samples: &r.px,
-                mesh: &mesh,
-                ids: ids.pixels(),
-                prev: prev.as_ref(),
-                cur: &cur,
-                iteration: iter,
+                samples: &self.px,
+                mesh: &st.mesh,
+                ids,
+                prev: st.prev.as_ref(),
+                cur: &st.cur,
+                iteration: st.iter,
             };
-            classifier.classify(&view, &mut contours)
+            classifier.classify(&view, &mut st.contours)
         };
-        r.it.metric_ms += c.metric_ms;
+        self.it.metric_ms += c.metric_ms;
         if c.distance.is_some() {
-            last_distance = c.distance.clone();
+            st.last_distance = c.distance.clone();
         }
-        // 2. Plan: what the classes ask for, or the rest at once when that is cheaper.
-        let mut plan = if finished {
+        c
+    }
+
+    /// Phase 2: the pixels the classes ask for, and whether they are instead every open
+    /// pixel at once, which ends the render ([`Plan::finish_if_cheaper`]).
+    fn plan(
+        &mut self,
+        st: &mut LoopState,
+        c: &mut Classification,
+        ids: &[ObjectId],
+    ) -> (Plan, bool) {
+        let mut plan = if st.finished {
             Plan::default()
         } else {
             Plan::new(
-                &mut r.px,
-                &mesh,
+                &mut self.px,
+                &st.mesh,
                 &mut c.classes,
-                ids.pixels(),
-                &mut contours,
+                ids,
+                &mut st.contours,
             )
         };
-        r.it.open_pixels = plan::open_pixels(&r.px, &mesh, &c.classes);
-        let finishing = !finished
+        self.it.open_pixels = plan::open_pixels(&self.px, &st.mesh, &c.classes);
+        let finishing = !st.finished
             && !plan.work.is_empty()
             && plan.finish_if_cheaper(
-                &r.px,
-                &mesh,
+                &self.px,
+                &st.mesh,
                 &c.classes,
-                r.it.open_pixels,
-                s.samples_per_pixel,
+                self.it.open_pixels,
+                self.s.samples_per_pixel,
             );
-        // 3. Stop?
-        let stop = r
+        (plan, finishing)
+    }
+
+    /// Phase 3: why the render ends here, if it does ([`budget`]); otherwise the plan
+    /// goes into this iteration's statistics.
+    fn stop(&mut self, st: &LoopState, plan: &Plan, finishing: bool) -> Option<Stop> {
+        let stop = self
             .budget
-            .stop(r.px.all_traced(), plan.work.is_empty(), iter)
+            .stop(self.px.all_traced(), plan.work.is_empty(), st.iter)
             .map(|stop| match stop {
-                Stop::AllFinal if finished => Stop::TracedRest,
+                Stop::AllFinal if st.finished => Stop::TracedRest,
                 stop => stop,
             });
         if stop.is_none() {
-            r.it.planned_pixels = plan.work.len() as u64;
-            r.it.finishing = finishing;
+            self.it.planned_pixels = plan.work.len() as u64;
+            self.it.finishing = finishing;
         }
-        // 4. Emit the frame.
-        let frame = r.frame(iter, cur, c, &mesh.raster, classifier.t1(), stop, &ids);
-        on_frame(&frame);
-        if stop.is_some() {
-            return Ok(frame);
-        }
-        cur = frame.image;
-        if iter == 0 && classifier.wants_noise() {
-            r.noise_twin(
-                &first,
-                &mesh,
-                &tri,
-                ids.pixels(),
-                &cur,
-                &mut *classifier,
-                cancel,
-            )?;
-        }
-        // 5. Trace, re-triangulate, shade, fill.
-        let (next_mesh, t) = r.refine(&mut tri, &plan.work, iter + 1, cancel)?;
-        let mut next = r.shaded(&next_mesh, &tri, ids.pixels());
+        stop
+    }
+
+    /// Phase 5: the plan traced and triangulated, the next picture shaded and its complex
+    /// triangles filled along their rupture; the next iteration's state.
+    fn advance(
+        &mut self,
+        st: &mut LoopState,
+        plan: &Plan,
+        classifier: &dyn Classifier,
+        ids: &[ObjectId],
+        cancel: &CancelToken,
+    ) -> Result<(), Cancelled> {
+        let (next_mesh, t) = self.refine(&mut st.tri, &plan.work, st.iter + 1, cancel)?;
+        let mut next = self.shaded(&next_mesh, &st.tri, ids);
         for &k in &plan.complex {
-            let (tr, px) = (&mesh.tris[k], &r.px);
-            let out = next.pixels_mut();
             fill::fill_complex(
-                tr,
-                &mesh.raster,
+                &st.mesh.tris[k],
+                &st.mesh.raster,
                 k,
-                px,
-                &*classifier,
-                s.exposure,
-                &mut contours,
-                out,
+                &self.px,
+                classifier,
+                self.s.exposure,
+                &mut st.contours,
+                next.pixels_mut(),
             );
         }
-        r.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
-        mesh = next_mesh;
-        prev = Some(std::mem::replace(&mut cur, next));
-        finished = finishing;
-        iter += 1;
+        self.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
+        st.mesh = next_mesh;
+        st.prev = Some(std::mem::replace(&mut st.cur, next));
+        st.iter += 1;
+        Ok(())
     }
 }
 
