@@ -476,6 +476,11 @@ async function main() {
       return i.complete && i.naturalWidth === 400 && document.querySelector("#job-state").textContent === "finished";
     }, null, { timeout: T(120) });
     await page.setViewportSize({ width: 390, height: 844 });
+    // The layout settles after the resize; give the viewer's observer a moment to see it.
+    await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      return i.getBoundingClientRect().width < 400 && getComputedStyle(i).imageRendering === "auto";
+    }, null, { timeout: T(5) }).catch(() => {});
     const fit = await page.$eval("#frame-img", (i) => [i.getBoundingClientRect().width, getComputedStyle(i).imageRendering]);
     check(fit[0] < 400 && fit[1] === "auto", "fit shrinks the picture smoothly (" + Math.round(fit[0]) + " px, " + fit[1] + ")");
     await page.click("#zoom-1");
