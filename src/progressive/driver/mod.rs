@@ -205,8 +205,14 @@ pub fn run_reporting<O: PixelOracle>(
             )?;
         }
         // 5. Trace, re-triangulate, shade, fill.
-        r.advance(&mut st, &plan, &*classifier, ids.pixels(), cancel)?;
-        st.finished = finishing;
+        r.advance(
+            &mut st,
+            &plan,
+            finishing,
+            &*classifier,
+            ids.pixels(),
+            cancel,
+        )?;
     }
 }
 
@@ -368,11 +374,13 @@ impl<'a, O: PixelOracle> Run<'a, O> {
     }
 
     /// Phase 5: the plan traced and triangulated, the next picture shaded and its complex
-    /// triangles filled along their rupture; the next iteration's state.
+    /// triangles filled along their rupture; the next iteration's state (`finishing`: the
+    /// plan was every open pixel, so nothing is left to judge).
     fn advance(
         &mut self,
         st: &mut LoopState,
         plan: &Plan,
+        finishing: bool,
         classifier: &dyn Classifier,
         ids: &[ObjectId],
         cancel: &CancelToken,
@@ -394,6 +402,7 @@ impl<'a, O: PixelOracle> Run<'a, O> {
         self.it.triangulate_ms += t.elapsed().as_secs_f64() * 1e3;
         st.mesh = next_mesh;
         st.prev = Some(std::mem::replace(&mut st.cur, next));
+        st.finished = finishing;
         st.iter += 1;
         Ok(())
     }
