@@ -144,4 +144,15 @@ mod tests {
         assert!(t.time_up() && t.can_cut());
         assert_eq!(t.stop(false, false, 0), Some(Stop::MaxTime));
     }
+
+    #[test]
+    fn the_time_budget_counts_from_the_renders_start() {
+        // What came before the loop (a large image's preview) is part of the user's time.
+        let start = Instant::now()
+            .checked_sub(Duration::from_millis(50))
+            .expect("the clock runs past 50 ms");
+        let b = Budget::new(None, Some(Duration::from_millis(20)), 3, start);
+        assert!(b.time_up());
+        assert_eq!(b.stop(false, false, 0), Some(Stop::MaxTime));
+    }
 }

@@ -147,21 +147,13 @@ pub fn run_reporting<O: PixelOracle>(
         return Err(Cancelled);
     }
     let start = Instant::now();
-    let (preview_ms, probe_ms) =
-        match before_the_loop(oracle, s, start, on_frame, on_pixels, cancel)? {
-            Ahead::Loop {
-                preview_ms,
-                probe_ms,
-            } => (preview_ms, probe_ms),
-            Ahead::TracedWhole(frame) => return Ok(*frame),
-        };
-    let mut r = Run::new(oracle, s);
-    r.start = start;
-    r.stats.trace_ms = preview_ms;
-    r.stats.analysis_ms = probe_ms;
+    let before = match before_the_loop(oracle, s, start, on_frame, on_pixels, cancel)? {
+        Ahead::Loop(before) => before,
+        Ahead::TracedWhole(frame) => return Ok(*frame),
+    };
+    let mut r = Run::new(oracle, s, start, before);
     let (ids, seeds) = r.analyse();
-    let (w, h) = oracle.size();
-    if w < 2 || h < 2 {
+    if r.px.w < 2 || r.px.h < 2 {
         return r.trace_whole(ids, on_frame, cancel);
     }
     let first = r.first_trace(&seeds, cancel)?;
@@ -218,8 +210,8 @@ pub fn run_reporting<O: PixelOracle>(
 
 /// How a render begins, before the loop's per-pixel state exists.
 enum Ahead {
-    /// The loop runs; the preview's and the cost probe's times.
-    Loop { preview_ms: f64, probe_ms: f64 },
+    /// The loop runs.
+    Loop(Before),
     /// The paths are too cheap for the loop: the render was traced whole ([`cost`]).
     TracedWhole(Box<Frame>),
 }
@@ -244,10 +236,10 @@ fn before_the_loop<O: PixelOracle>(
         0.0
     };
     Ok(match cost::probe(oracle, s, cancel)? {
-        cost::Verdict::Loop { probe_ms } => Ahead::Loop {
+        cost::Verdict::Loop { probe_ms } => Ahead::Loop(Before {
             preview_ms,
             probe_ms,
-        },
+        }),
         cost::Verdict::Reference { probe_ms } => {
             let before = preview_ms + probe_ms;
             let f = cost::reference(oracle, s, start, before, on_pixels, cancel)?;
@@ -255,6 +247,12 @@ fn before_the_loop<O: PixelOracle>(
             Ahead::TracedWhole(Box::new(f))
         }
     })
+}
+
+/// What a render spent before the loop: the preview's trace and the cost probe, ms.
+struct Before {
+    preview_ms: f64,
+    probe_ms: f64,
 }
 
 /// What the loop carries from one iteration to the next.
@@ -409,8 +407,8 @@ impl<'a, O: PixelOracle> Run<'a, O> {
 }
 
 impl<'a, O: PixelOracle> Run<'a, O> {
-    fn new(oracle: &'a O, s: &'a Settings) -> Self {
-        let start = Instant::now();
+    /// A render begun at `start` (its budget counts from there), having spent `before`.
+    fn new(oracle: &'a O, s: &'a Settings, start: Instant, before: Before) -> Self {
         let (w, h) = oracle.size();
         let mode = s.oracle.mode();
         Self {
@@ -423,6 +421,8 @@ impl<'a, O: PixelOracle> Run<'a, O> {
                 mode: mode.into(),
                 width: w,
                 height: h,
+                trace_ms: before.preview_ms,
+                analysis_ms: before.probe_ms,
                 ..RenderStats::default()
             },
             it: IterationStats::default(),
