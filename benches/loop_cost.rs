@@ -18,7 +18,7 @@
 //! examples and `GLIMPSE_LOOP_COST_CORPUS` generated scenes (default 40) of each seed in
 //! `GLIMPSE_LOOP_COST_SEEDS` (default `1,2`).
 
-use glimpse::bench::corpus;
+use glimpse::bench::{corpus, median};
 use glimpse::cancel::CancelToken;
 use glimpse::progressive::{self, RenderOptions, RenderStats};
 use glimpse::scene::examples::EXAMPLES;
@@ -65,15 +65,6 @@ impl Row {
 
 const HEADER: &str = "| scene | traced | loop × ref | trace | metric | shading | analysis | rest | pixel cost × ref |";
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => v[n / 2],
-        n => (v[n / 2 - 1] + v[n / 2]) / 2.0,
-    }
-}
-
 /// Wall time of one render in `mode`, and its statistics.
 fn timed(scene: &Scene, tracer: &PathTracer, mode: RenderMode) -> (f64, RenderStats) {
     let opts = RenderOptions {
@@ -100,7 +91,7 @@ fn measure(name: &str, scene: &Scene) -> Row {
     }
     loops.sort_by(|a, b| a.0.total_cmp(&b.0));
     let (total, st) = &loops[RUNS / 2];
-    let reference = median(refs);
+    let reference = median(&mut refs);
     Row {
         name: name.to_string(),
         traced: st.pixel_fraction,
@@ -128,7 +119,8 @@ fn print_row(name: &str, c: [f64; 8]) {
 
 fn print_medians(label: &str, rows: &[Row]) {
     let cols: Vec<[f64; 8]> = rows.iter().map(Row::columns).collect();
-    let med: [f64; 8] = std::array::from_fn(|k| median(cols.iter().map(|c| c[k]).collect()));
+    let med: [f64; 8] =
+        std::array::from_fn(|k| median(&mut cols.iter().map(|c| c[k]).collect::<Vec<_>>()));
     print_row(&format!("**median, {label} ({})**", rows.len()), med);
     let fast = rows.iter().filter(|r| r.total <= 0.5).count();
     let trace_fast = rows.iter().filter(|r| r.trace <= 0.35).count();

@@ -839,8 +839,9 @@ pub(crate) fn ms(t: Instant) -> f64 {
 /// Runs of the reference and the progressive render whose median times make the ratio.
 const TIMING_RUNS: usize = 3;
 
-/// The median of a non-empty list (the upper middle of an even one).
-pub(crate) fn median(v: &mut [f64]) -> f64 {
+/// The median of a non-empty list (the upper middle of an even one); the study's and the
+/// `loop_cost` benchmark's.
+pub fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
