@@ -10,8 +10,7 @@
 //! Each job is cancelled at its first frame and deleted (which waits for the files written
 //! after its end) before the next, so runs do not overlap: the server is idle at each POST. One warm-up job first (page cache, the worker's thread pool). Medians
 //! of `GLIMPSE_BENCH_RUNS` (default 7) per size, printed with pass/fail against the
-//! target of 300 ms (issue 17: "a first preview within 300 ms of the POST at any
-//! accepted size").
+//! target of 300 ms (a first preview within 300 ms of the POST at any accepted size).
 //!
 //! Run: `cargo bench --bench first_preview` (under a minute once built).
 

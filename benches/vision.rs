@@ -98,7 +98,7 @@ fn main() {
     }
     let (w, h) = (512, 512);
     let a = textured(w, h);
-    // Pair 1 (the issue's): a textured image and a uniformly noisy copy.
+    // Pair 1: a textured image and a uniformly noisy copy.
     run_pair(
         "textured vs noisy copy (5 % noise everywhere)",
         &a,
@@ -119,7 +119,7 @@ fn main() {
         &a,
         &local,
     );
-    // Issue #4: the block map as the progressive renderer calls it.
+    // The block map as the progressive renderer calls it.
     progressive_frames();
 }
 

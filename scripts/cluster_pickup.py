@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Pickup latency across nodes (issue 16, LISTEN/NOTIFY): jobs submitted one at a time
+"""Pickup latency across nodes (LISTEN/NOTIFY): jobs submitted one at a time
 to an API node that only serves (--workers 0) and claimed by an idle worker node, on the
 PostgreSQL server scripts/pg.sh starts (or GLIMPSE_TEST_DATABASE_URL). A job's pickup
 is its `started_at` (the worker's claim) minus its `created_at` (the API node's insert),

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Throughput of worker nodes (issue 16): a batch of 8 jobs rendered by 1 worker, then by
+"""Throughput of worker nodes: a batch of 8 jobs rendered by 1 worker, then by
 2 workers, each on one render thread, against one API node that only serves, on the
 PostgreSQL server scripts/pg.sh starts (or GLIMPSE_TEST_DATABASE_URL). Each run gets a
 fresh database and job folder. The runs alternate (1, 2, 1, 2, ...) so that both see the

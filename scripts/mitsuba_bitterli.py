@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Renders Glimpse's `scenes/cornell-box.json` (Bitterli's Cornell box: same camera,
 albedos, light) with Mitsuba 3 and compares its mean linear RGB with Tungsten's converged
-reference, as issue #2 asks ("Mitsuba 3 on the same box at 64 spp lands within 1 % of
+reference, as the tracer's agreement target asks ("Mitsuba 3 on the same box at 64 spp lands within 1 % of
 it"). This checks the peer, not Glimpse: Glimpse's own check is
 tests/tracer_analytic.rs; the script also renders Glimpse's image of the same scene with
 the same settings when a built `glimpse` binary is given, so the three means sit side by

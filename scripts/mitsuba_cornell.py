@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Times Mitsuba 3's built-in Cornell box at 512x512, 64 spp, on this machine, for a
-side-by-side comparison with `cargo bench --bench tracer` (issue #2).
+side-by-side comparison with `cargo bench --bench tracer`.
 
 Depth: Glimpse's `max_bounces = 6` counts scattering events (pbrt's maxdepth); Mitsuba's
 `max_depth` counts path vertices including the emitter, so the equivalent is

@@ -1,5 +1,5 @@
 //! `glimpse bench` end to end on one tiny scene: the study runs every method, writes its
-//! report, raw numbers and plot, and checks the targets on what it measured; and on
+//! report, raw numbers and plot, and checks the study's targets on what it measured; and on
 //! a two-scene generated corpus, judged against its cached truth.
 
 use serde_json::Value;

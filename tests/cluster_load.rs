@@ -1,11 +1,11 @@
-//! The cluster under load (issue 16 "Load"): submissions spread over two API nodes on one
+//! The cluster under load : submissions spread over two API nodes on one
 //! PostgreSQL database, every job watched on both nodes at once, real processes on
 //! loopback. Checks: no 5xx anywhere, no job lost (every `201` ends `succeeded`, every
 //! stream ends with `done`), and each node's peak resident memory under a bound.
 //!
 //! CI runs a small figure (40 submissions, 80 watchers, 16×16 images);
 //! `GLIMPSE_CLUSTER_LOAD_JOBS=200 cargo test --release --test cluster_load -- --nocapture`
-//! runs the issue's whole figure (200 submissions, 400 watchers). The `cluster load:`
+//! runs the full figure (200 submissions, 400 watchers). The `cluster load:`
 //! line gives each node's peak RSS (VmHWM) for the README.
 
 mod common;

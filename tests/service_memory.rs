@@ -13,7 +13,7 @@ use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
-/// The bound of the issue: 250 MB.
+/// The bound the service promises: 250 MB.
 const GROWTH_LIMIT_KIB: u64 = 250 * 1000;
 /// Short, so the test waits little for the cut.
 const STALL_S: u64 = 3;

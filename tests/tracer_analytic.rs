@@ -629,9 +629,9 @@ fn reference_mean() -> [f64; 3] {
         .mean()
 }
 
-/// The same comparison through the JSON contract, at the issue's 256×256: scenes/cornell-box.json
+/// The same comparison through the JSON contract, at 256×256: scenes/cornell-box.json
 /// parsed by `scene::parse_scene`, 64 bounces like Tungsten, 16 spp (the mean of 1 M paths
-/// is far steadier than the tolerance). The issue asks for 3 %; measured 0.05–0.08 %
+/// is far steadier than the tolerance). The target is 3 %; measured 0.05–0.08 %
 /// (64 spp, `scripts/mitsuba_bitterli.py`, where Mitsuba 3 lands within 0.03 %), so the
 /// test holds 1 %, which a real energy bias would break.
 #[test]

@@ -82,8 +82,8 @@ pub struct CorpusConfig {
 }
 
 impl BenchConfig {
-    /// The study's defaults for `scenes_dir` and `out_dir`: the four conditions of issue
-    /// 13 (two in quick mode), bundled scenes, no corpus, the cache under `out_dir`.
+    /// The study's defaults for `scenes_dir` and `out_dir`: the four standard viewing
+    /// conditions (two in quick mode), bundled scenes, no corpus, the cache under `out_dir`.
     #[must_use]
     pub fn new(scenes_dir: PathBuf, out_dir: PathBuf, quick: bool) -> Self {
         Self {
@@ -136,7 +136,7 @@ pub struct MethodResult {
     pub overhead_share: Option<f64>,
 }
 
-/// A target of the issue, checked on measured numbers.
+/// A target of the study, checked on measured numbers.
 #[derive(Clone, Debug, Serialize)]
 pub struct TargetCheck {
     pub target: String,
@@ -485,6 +485,7 @@ fn timing_runs(cfg: &BenchConfig) -> usize {
     }
 }
 
+/// One bundled scene: the reference and the loop timed, the peers, the judges, the images.
 fn bench_scene(
     loaded: &Loaded,
     cfg: &BenchConfig,
@@ -493,180 +494,67 @@ fn bench_scene(
     let scene = &loaded.scene;
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(scene);
-    let (w, h) = (scene.width, scene.height);
-    let pixels = f64::from(w) * f64::from(h);
-    let exposure = scene.display.exposure;
-    let ppd = scene.display.pixels_per_degree;
-    let spp = scene.render.samples_per_pixel;
-
-    let run_with = |scene: &Scene, opts: RenderOptions| {
-        let t = Instant::now();
-        let frame = progressive::render(scene, &tracer, &opts, &mut |_| {}, &cancel)?;
-        anyhow::Ok((frame, ms(t)))
+    let renders = Renders {
+        tracer: &tracer,
+        cancel: &cancel,
     };
-    let run_mode = |scene: &Scene, mode: RenderMode, max_pixels: Option<u64>| {
-        run_with(
-            scene,
-            RenderOptions {
-                mode: Some(mode),
-                max_pixels,
-                ..RenderOptions::default()
-            },
-        )
-    };
-
-    // The time ratio is the target: reference and progressive run alternately, and each
-    // time is the median of its runs (renders are deterministic, so every run gives the
-    // same image). One run of each on this noisy machine could swing the ratio by ±0.05.
     let runs = timing_runs(cfg);
-    progress.stage(&format!("reference and progressive, {runs} timed runs"));
-    let (mut ref_times, mut prog_times) = (Vec::new(), Vec::new());
-    let mut timed = None;
-    for _ in 0..runs {
-        let t = Instant::now();
-        let r = tracer::render_reference(&tracer, &cancel, &|_, _| {})?;
-        ref_times.push(ms(t));
-        let (f, f_ms) = run_mode(scene, RenderMode::Progressive, None)?;
-        prog_times.push(f_ms);
-        timed = Some((r, f));
-    }
-    let (reference, prog) = timed.context("at least one timing run")?;
-    let (reference_ms, prog_ms) = (median(&mut ref_times), median(&mut prog_times));
-    let time_split = time_split(&tracer, &prog, prog_ms, reference_ms, runs, &cancel)?;
-    progress.stage("the independent reference and the converged render");
-    let judge = independent_reference(&tracer, scene, &cancel)?;
-    let noise_floor = flip(&judge, &reference, exposure, ppd);
-    let truth = truth::converged(scene, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
-    let vs_converged = |img: &LinearImage| flip(&truth.image, img, exposure, ppd).mean;
-
-    let model = VisionModel::new(display_model(scene), w, h);
-    let judge_stack = model.decompose(&judge)?;
-    let glimpse_distance = |img: &LinearImage| -> anyhow::Result<f64> {
-        let s = model.decompose(img)?;
-        let params = MetricParams {
-            homogeneity: scene.progressive.homogeneity,
-            epsilon: scene.progressive.epsilon,
-            seed: scene.render.seed,
-        };
-        Ok(metric::block_map(&model, &judge_stack, &s, &[], &params).mean())
-    };
-
-    let mut methods = Vec::new();
-    methods.push(MethodResult {
-        method: "reference".into(),
-        ms: reference_ms,
-        time_ratio: 1.0,
-        pixels_traced: pixels as u64,
-        pixel_fraction: 1.0,
-        spp: Some(spp),
-        flip: noise_floor,
-        converged_flip: vs_converged(&reference),
-        glimpse_distance: glimpse_distance(&reference)?,
-        overhead_share: None,
-    });
-
-    // A row for a run of the progressive loop (progressive, uncompensated, Guo).
-    let loop_row = |method: &str, f: &progressive::Frame, ms: f64| -> anyhow::Result<_> {
-        let st = &f.stats;
-        Ok(MethodResult {
-            method: method.into(),
-            ms,
-            time_ratio: ms / reference_ms,
-            pixels_traced: st.pixels_traced,
-            pixel_fraction: st.pixel_fraction,
-            spp: Some(spp),
-            flip: flip(&judge, &f.image, exposure, ppd),
-            converged_flip: vs_converged(&f.image),
-            glimpse_distance: glimpse_distance(&f.image)?,
-            overhead_share: Some((st.metric_ms + st.triangulate_ms) / st.total_ms.max(1e-9)),
-        })
-    };
-
-    methods.push(loop_row("progressive", &prog, prog_ms)?);
-
-    progress.stage("without noise compensation, Guo, uniform");
-    // What the noise compensation buys: F&P04 exactly as published (exact-oracle assumption).
-    let (plain, plain_ms) = run_with(
-        scene,
-        RenderOptions {
-            mode: Some(RenderMode::Progressive),
-            noise_compensation: Some(false),
-            ..RenderOptions::default()
-        },
-    )?;
-    methods.push(loop_row(
-        "progressive, no noise compensation",
-        &plain,
-        plain_ms,
-    )?);
-
-    // Equal rays: the progressive run's noise twins (traced, but not pixels of the image)
-    // count against Guo's budget too.
-    let budget = prog.stats.pixels_traced + prog.stats.noise_probe_pixels;
-    let (guo, guo_ms) = run_mode(scene, RenderMode::Guo, Some(budget))?;
-    methods.push(loop_row("guo", &guo, guo_ms)?);
-
-    let t = Instant::now();
-    let (uni, uni_spp) = uniform::render_equal_time(
-        scene,
+    let timed = timed_runs(&renders, scene, runs, progress)?;
+    let time_split = time_split(
         &tracer,
-        Duration::from_secs_f64(prog_ms / 1e3),
+        &timed.prog,
+        timed.prog_ms,
+        timed.reference_ms,
+        runs,
         &cancel,
     )?;
-    let uni_ms = ms(t);
-    methods.push(MethodResult {
-        method: "uniform (equal time)".into(),
-        ms: uni_ms,
-        time_ratio: uni_ms / reference_ms,
-        pixels_traced: pixels as u64,
-        pixel_fraction: 1.0,
-        spp: Some(uni_spp),
-        flip: flip(&judge, &uni, exposure, ppd),
-        converged_flip: vs_converged(&uni),
-        glimpse_distance: glimpse_distance(&uni)?,
-        overhead_share: None,
-    });
+    progress.stage("the independent reference and the converged render");
+    let rows = Rows::new(loaded, &tracer, cfg, &cancel, &timed)?;
+    progress.stage("without noise compensation, Guo, uniform");
+    let peers = peers(&renders, scene, &timed)?;
+    let methods = vec![
+        rows.reference(&timed.reference)?,
+        rows.of_loop("progressive", &timed.prog, timed.prog_ms)?,
+        rows.of_loop(
+            "progressive, no noise compensation",
+            &peers.plain.0,
+            peers.plain.1,
+        )?,
+        rows.of_loop("guo", &peers.guo.0, peers.guo.1)?,
+        rows.uniform(&peers.uniform.0, peers.uniform.1, peers.uniform.2)?,
+    ];
 
     let ids = tracer::object_id_map(&tracer);
     let case = Case {
         scene,
         tracer: &tracer,
-        truth: &truth.image,
-        judge: &judge,
+        truth: &rows.truth.image,
+        judge: &rows.judge,
         ids: &ids,
         runs,
         cancel: &cancel,
     };
-    let (sweep, conditions) = against_truth(&case, &reference, reference_ms, cfg, progress)?;
-
-    // "Dark scenes cost less": the same scene shown 16× brighter must trace more pixels.
-    let exposure_check = if scene.name.contains("cellar") {
-        let mut bright = scene.clone();
-        bright.display.exposure *= 16.0;
-        let (f, _) = run_mode(&bright, RenderMode::Progressive, None)?;
-        Some((prog.stats.pixel_fraction, f.stats.pixel_fraction))
-    } else {
-        None
-    };
-
+    let (sweep, conditions) =
+        against_truth(&case, &timed.reference, timed.reference_ms, cfg, progress)?;
+    let exposure_check = exposure_check(&renders, scene, &timed.prog)?;
     write_images(
         cfg,
         scene,
         &[
-            ("reference", &reference),
-            ("progressive", &prog.image),
-            ("guo", &guo.image),
-            ("uniform", &uni),
+            ("reference", &timed.reference),
+            ("progressive", &timed.prog.image),
+            ("guo", &peers.guo.0.image),
+            ("uniform", &peers.uniform.0),
         ],
     )?;
-    let targets = check_targets(&methods, noise_floor, exposure_check);
+    let targets = check_targets(&methods, rows.noise_floor, exposure_check);
     Ok(SceneResult {
         scene: scene.name.clone(),
-        width: w,
-        height: h,
-        spp,
-        reference_ms,
-        noise_floor,
+        width: scene.width,
+        height: scene.height,
+        spp: scene.render.samples_per_pixel,
+        reference_ms: timed.reference_ms,
+        noise_floor: rows.noise_floor,
         methods,
         sweep,
         conditions,
@@ -674,6 +562,248 @@ fn bench_scene(
         time_split,
         targets,
     })
+}
+
+/// One scene's renders through its tracer, timed.
+struct Renders<'a> {
+    tracer: &'a PathTracer,
+    cancel: &'a CancelToken,
+}
+
+impl Renders<'_> {
+    fn run(&self, scene: &Scene, opts: RenderOptions) -> anyhow::Result<(progressive::Frame, f64)> {
+        let t = Instant::now();
+        let frame = progressive::render(scene, self.tracer, &opts, &mut |_| {}, self.cancel)?;
+        Ok((frame, ms(t)))
+    }
+
+    fn mode(
+        &self,
+        scene: &Scene,
+        mode: RenderMode,
+        max_pixels: Option<u64>,
+    ) -> anyhow::Result<(progressive::Frame, f64)> {
+        self.run(
+            scene,
+            RenderOptions {
+                mode: Some(mode),
+                max_pixels,
+                ..RenderOptions::default()
+            },
+        )
+    }
+}
+
+/// The reference and the progressive loop, each time the median of its runs.
+struct Timed {
+    reference: LinearImage,
+    prog: progressive::Frame,
+    reference_ms: f64,
+    prog_ms: f64,
+}
+
+/// The time ratio is the target: reference and progressive run alternately, and each time
+/// is the median of its runs (renders are deterministic, so every run gives the same
+/// image). One run of each on this noisy machine could swing the ratio by ±0.05.
+fn timed_runs(
+    renders: &Renders,
+    scene: &Scene,
+    runs: usize,
+    progress: &Progress,
+) -> anyhow::Result<Timed> {
+    progress.stage(&format!("reference and progressive, {runs} timed runs"));
+    let (mut ref_times, mut prog_times) = (Vec::new(), Vec::new());
+    let mut last = None;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let r = tracer::render_reference(renders.tracer, renders.cancel, &|_, _| {})?;
+        ref_times.push(ms(t));
+        let (f, f_ms) = renders.mode(scene, RenderMode::Progressive, None)?;
+        prog_times.push(f_ms);
+        last = Some((r, f));
+    }
+    let (reference, prog) = last.context("at least one timing run")?;
+    Ok(Timed {
+        reference,
+        prog,
+        reference_ms: median(&mut ref_times),
+        prog_ms: median(&mut prog_times),
+    })
+}
+
+/// What a row is judged against: the independent reference (another seed), the converged
+/// truth, and Glimpse's own metric against the independent reference.
+struct Rows<'a> {
+    scene: &'a Scene,
+    judge: LinearImage,
+    truth: truth::Truth,
+    model: VisionModel,
+    judge_stack: crate::vision::ContrastStack,
+    /// FLIP between the reference and the independent reference.
+    noise_floor: FlipScore,
+    reference_ms: f64,
+}
+
+impl<'a> Rows<'a> {
+    fn new(
+        loaded: &'a Loaded,
+        tracer: &PathTracer,
+        cfg: &BenchConfig,
+        cancel: &CancelToken,
+        timed: &Timed,
+    ) -> anyhow::Result<Self> {
+        let scene = &loaded.scene;
+        let judge = independent_reference(tracer, scene, cancel)?;
+        let noise_floor = flip(
+            &judge,
+            &timed.reference,
+            scene.display.exposure,
+            scene.display.pixels_per_degree,
+        );
+        let truth = truth::converged(scene, &loaded.document, tracer, &cfg.cache_dir, cancel)?;
+        let model = VisionModel::new(display_model(scene), scene.width, scene.height);
+        let judge_stack = model.decompose(&judge)?;
+        Ok(Self {
+            scene,
+            judge,
+            truth,
+            model,
+            judge_stack,
+            noise_floor,
+            reference_ms: timed.reference_ms,
+        })
+    }
+
+    /// A row with every pixel traced (the reference, or uniform at `spp`).
+    fn traced_whole(
+        &self,
+        method: &str,
+        img: &LinearImage,
+        ms: f64,
+        spp: u32,
+    ) -> anyhow::Result<MethodResult> {
+        Ok(MethodResult {
+            method: method.into(),
+            ms,
+            time_ratio: ms / self.reference_ms,
+            pixels_traced: u64::from(self.scene.width) * u64::from(self.scene.height),
+            pixel_fraction: 1.0,
+            spp: Some(spp),
+            flip: self.flip(img),
+            converged_flip: self.converged_flip(img),
+            glimpse_distance: self.glimpse_distance(img)?,
+            overhead_share: None,
+        })
+    }
+
+    fn reference(&self, img: &LinearImage) -> anyhow::Result<MethodResult> {
+        let mut row = self.traced_whole(
+            "reference",
+            img,
+            self.reference_ms,
+            self.scene.render.samples_per_pixel,
+        )?;
+        row.flip = self.noise_floor;
+        Ok(row)
+    }
+
+    fn uniform(&self, img: &LinearImage, spp: u32, ms: f64) -> anyhow::Result<MethodResult> {
+        self.traced_whole("uniform (equal time)", img, ms, spp)
+    }
+
+    /// A row for a run of the progressive loop (progressive, uncompensated, Guo).
+    fn of_loop(
+        &self,
+        method: &str,
+        f: &progressive::Frame,
+        ms: f64,
+    ) -> anyhow::Result<MethodResult> {
+        let st = &f.stats;
+        Ok(MethodResult {
+            method: method.into(),
+            ms,
+            time_ratio: ms / self.reference_ms,
+            pixels_traced: st.pixels_traced,
+            pixel_fraction: st.pixel_fraction,
+            spp: Some(self.scene.render.samples_per_pixel),
+            flip: self.flip(&f.image),
+            converged_flip: self.converged_flip(&f.image),
+            glimpse_distance: self.glimpse_distance(&f.image)?,
+            overhead_share: Some((st.metric_ms + st.triangulate_ms) / st.total_ms.max(1e-9)),
+        })
+    }
+
+    fn flip(&self, img: &LinearImage) -> FlipScore {
+        let d = &self.scene.display;
+        flip(&self.judge, img, d.exposure, d.pixels_per_degree)
+    }
+
+    fn converged_flip(&self, img: &LinearImage) -> f64 {
+        let d = &self.scene.display;
+        flip(&self.truth.image, img, d.exposure, d.pixels_per_degree).mean
+    }
+
+    fn glimpse_distance(&self, img: &LinearImage) -> anyhow::Result<f64> {
+        let s = self.model.decompose(img)?;
+        let params = MetricParams {
+            homogeneity: self.scene.progressive.homogeneity,
+            epsilon: self.scene.progressive.epsilon,
+            seed: self.scene.render.seed,
+        };
+        Ok(metric::block_map(&self.model, &self.judge_stack, &s, &[], &params).mean())
+    }
+}
+
+/// The peers of the progressive run, each a (result, milliseconds) pair.
+struct Peers {
+    /// F&P04 exactly as published (exact-oracle assumption): what the noise compensation
+    /// buys.
+    plain: (progressive::Frame, f64),
+    /// Guo at equal rays: the progressive run's noise twins (traced, but not pixels of the
+    /// image) count against Guo's budget too.
+    guo: (progressive::Frame, f64),
+    /// Every pixel at the samples that fit the progressive run's time: (image, spp, ms).
+    uniform: (LinearImage, u32, f64),
+}
+
+fn peers(renders: &Renders, scene: &Scene, timed: &Timed) -> anyhow::Result<Peers> {
+    let plain = renders.run(
+        scene,
+        RenderOptions {
+            mode: Some(RenderMode::Progressive),
+            noise_compensation: Some(false),
+            ..RenderOptions::default()
+        },
+    )?;
+    let budget = timed.prog.stats.pixels_traced + timed.prog.stats.noise_probe_pixels;
+    let guo = renders.mode(scene, RenderMode::Guo, Some(budget))?;
+    let t = Instant::now();
+    let (uni, uni_spp) = uniform::render_equal_time(
+        scene,
+        renders.tracer,
+        Duration::from_secs_f64(timed.prog_ms / 1e3),
+        renders.cancel,
+    )?;
+    Ok(Peers {
+        plain,
+        guo,
+        uniform: (uni, uni_spp, ms(t)),
+    })
+}
+
+/// "Dark scenes cost less": the cellar shown 16× brighter must trace more pixels.
+fn exposure_check(
+    renders: &Renders,
+    scene: &Scene,
+    prog: &progressive::Frame,
+) -> anyhow::Result<Option<(f64, f64)>> {
+    if !scene.name.contains("cellar") {
+        return Ok(None);
+    }
+    let mut bright = scene.clone();
+    bright.display.exposure *= 16.0;
+    let (f, _) = renders.mode(&bright, RenderMode::Progressive, None)?;
+    Ok(Some((prog.stats.pixel_fraction, f.stats.pixel_fraction)))
 }
 
 /// A bundled scene against its truth: the t0 sweep at [`SWEEP_CONDITIONS`] (three t0 at
@@ -745,7 +875,7 @@ fn time_split(
     })
 }
 
-/// The issue's targets, checked against this run's numbers (the report says by how much a
+/// The study's per-scene targets, checked against this run's numbers (the report says by how much a
 /// missed target is missed).
 fn check_targets(
     m: &[MethodResult],

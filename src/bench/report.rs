@@ -6,7 +6,7 @@ use super::judge::{Condition, SlowBecause, SweepPoint, Q_TARGET, TIME_TARGET};
 use super::objects::{MIN_COVERAGE, MIN_TOLERANCE, REFERENCE_FACTOR};
 use super::peer::PeerResult;
 use super::truth::TRUTH_SPP_FACTOR;
-use super::{median, BenchConfig, CorpusResult, SceneResult, Study, TargetCheck};
+use super::{median, BenchConfig, CorpusResult, SceneResult, Study, TargetCheck, TimeSplit};
 use anyhow::Context;
 use plotters::prelude::*;
 use std::fmt::Write as _;
@@ -20,7 +20,39 @@ pub fn scene_table(r: &SceneResult) -> String {
         "### {} ({}x{}, {} spp; reference {:.0} ms; FLIP noise floor {:.4})\n",
         r.scene, r.width, r.height, r.spp, r.reference_ms, r.noise_floor.mean
     );
-    s.push_str("| method | time | × reference | pixels traced | spp | FLIP mean | FLIP p99 | FLIP vs converged | Glimpse metric (JND) | metric+triangulation |\n");
+    s.push_str(&methods_table(r));
+    s.push('\n');
+    s.push_str(&conditions_table(&r.conditions));
+    s.push_str("\nt0 sweep: ");
+    for p in &r.sweep {
+        let _ = write!(
+            s,
+            "{} ppd t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}, Q {:.2}; ",
+            p.ppd,
+            p.t0,
+            p.time_ratio,
+            p.pixel_fraction * 100.0,
+            p.flip,
+            p.q
+        );
+    }
+    s.push_str(&time_split_words(&r.time_split));
+    s.push_str("\n\n| target | met | measured |\n|---|---|---|\n");
+    for t in &r.targets {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} |",
+            t.target,
+            if t.met { "yes" } else { "**no**" },
+            t.detail
+        );
+    }
+    s
+}
+
+/// One row per method of a scene.
+fn methods_table(r: &SceneResult) -> String {
+    let mut s = String::from("| method | time | × reference | pixels traced | spp | FLIP mean | FLIP p99 | FLIP vs converged | Glimpse metric (JND) | metric+triangulation |\n");
     s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for m in &r.methods {
         let _ = writeln!(
@@ -39,22 +71,12 @@ pub fn scene_table(r: &SceneResult) -> String {
                 .map_or("–".into(), |v| format!("{:.1}%", v * 100.0)),
         );
     }
-    s.push('\n');
-    s.push_str(&conditions_table(&r.conditions));
-    s.push_str("\nt0 sweep: ");
-    for p in &r.sweep {
-        let _ = write!(
-            s,
-            "{} ppd t0={} → {:.2}× time, {:.1}% px, FLIP {:.4}, Q {:.2}; ",
-            p.ppd,
-            p.t0,
-            p.time_ratio,
-            p.pixel_fraction * 100.0,
-            p.flip,
-            p.q
-        );
-    }
-    let ts = &r.time_split;
+    s
+}
+
+/// The progressive run's time split, in two sentences.
+fn time_split_words(ts: &TimeSplit) -> String {
+    let mut s = String::new();
     let _ = write!(
         s,
         "\n\nTime split of the progressive run: tracing its pixels alone takes {:.2}× the \
@@ -82,16 +104,6 @@ pub fn scene_table(r: &SceneResult) -> String {
          {:.0} ms.",
         lp.analysis_ms, lp.metric_ms, lp.triangulate_ms, lp.other_ms
     );
-    s.push_str("\n\n| target | met | measured |\n|---|---|---|\n");
-    for t in &r.targets {
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} |",
-            t.target,
-            if t.met { "yes" } else { "**no**" },
-            t.detail
-        );
-    }
     s
 }
 
@@ -309,7 +321,7 @@ fn q_time_target(what: &str) -> String {
     format!("{what}: Q ≤ {Q_TARGET} at ≤ {TIME_TARGET}× time")
 }
 
-/// Issue 13's targets, checked on this run's numbers.
+/// The study's targets over every scene, checked on this run's numbers.
 #[must_use]
 pub fn summary(study: &Study) -> Vec<TargetCheck> {
     let mut t = bundled_targets(&study.scenes);
@@ -480,6 +492,36 @@ pub fn write(
     peer: &Result<PeerResult, String>,
 ) -> anyhow::Result<()> {
     let targets = summary(study);
+    let md = markdown(cfg, study, peer, &targets);
+    let p = cfg.out_dir.join("report.md");
+    std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
+    let json = serde_json::json!({
+        "summary": targets,
+        "sweep_checks": sweep_checks(&study.scenes),
+        "scenes": study.scenes,
+        "corpus": study.corpus,
+        "peer": peer.as_ref().ok(),
+        "peer_error": peer.as_ref().err(),
+    });
+    let p = cfg.out_dir.join("results.json");
+    std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
+        .with_context(|| format!("cannot write {}", p.display()))?;
+    // A corpus-only run has no t0 sweep to draw.
+    if !study.scenes.is_empty() {
+        plot(cfg, &study.scenes)?;
+    }
+    println!("{md}");
+    Ok(())
+}
+
+/// `report.md`: the summary, the bundled scenes against the truth, the corpus, every
+/// method per scene, the peer, then how it is judged.
+fn markdown(
+    cfg: &BenchConfig,
+    study: &Study,
+    peer: &Result<PeerResult, String>,
+    targets: &[TargetCheck],
+) -> String {
     let mut md = String::from("# Glimpse speed-versus-accuracy study\n\n");
     let _ = writeln!(
         md,
@@ -488,10 +530,69 @@ pub fn write(
         in_short(study)
     );
     md.push_str("| target | met | measured |\n|---|---|---|\n");
-    for t in &targets {
+    for t in targets {
         let _ = writeln!(md, "| {} | {} | {} |", t.target, yes_no(t.met), t.detail);
     }
     md.push_str(WORDS);
+    md.push('\n');
+    if !study.scenes.is_empty() {
+        md.push_str("## Bundled scenes against the truth\n\n");
+        for r in &study.scenes {
+            let _ = writeln!(md, "### {}\n\n{}", r.scene, conditions_table(&r.conditions));
+        }
+        md.push_str(&sweep_section(study));
+    }
+    if !study.corpus.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Corpus ({} generated scenes; documents in `corpus/`)\n\n{}",
+            study.corpus.len(),
+            corpus_table(&study.corpus)
+        );
+    }
+    if !study.scenes.is_empty() {
+        md.push_str(&every_method_section(cfg, study));
+    }
+    if cfg.bundled {
+        md.push_str(&peer_section(peer));
+    }
+    md.push_str(&how_judged(cfg));
+    md
+}
+
+/// Every method on every bundled scene, with what the columns mean.
+fn every_method_section(cfg: &BenchConfig, study: &Study) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "## Bundled scenes: every method\n\nAll images of a scene are judged by LDR-FLIP \
+         (nv-flip, at the scene's pixels per degree, display-referred) against an \
+         independent reference (same scene and spp, another seed); the reference row's \
+         FLIP is that noise floor. Guo stops at the progressive run's ray count (noise \
+         twins included); uniform gets the progressive run's wall time. \"FLIP vs \
+         converged\" judges the same images against the truth ({TRUTH_SPP_FACTOR}× the \
+         samples, another seed). The reference and progressive times are medians of 3 \
+         alternating runs (one run in `--quick`); every other cell is one render. All in \
+         one run on this machine: the ratios measured side by side are the result, not \
+         the absolute times.\n"
+    );
+    if cfg.spp_factor != 1 {
+        let _ = writeln!(
+            md,
+            "Run with `--spp-factor {}`: every scene's samples per pixel are {}× those written \
+             in its file (the spp column shows the samples used).\n",
+            cfg.spp_factor, cfg.spp_factor
+        );
+    }
+    for r in &study.scenes {
+        md.push_str(&scene_table(r));
+        md.push('\n');
+    }
+    md
+}
+
+/// The closing section: what the truth is, Q, the times, the objects test, the sheets.
+fn how_judged(cfg: &BenchConfig) -> String {
     let mut judge = String::new();
     let _ = writeln!(
         judge,
@@ -516,72 +617,7 @@ pub fn write(
         MIN_COVERAGE * 100.0,
         MIN_TOLERANCE * 100.0,
     );
-    md.push('\n');
-    if !study.scenes.is_empty() {
-        md.push_str("## Bundled scenes against the truth\n\n");
-        for r in &study.scenes {
-            let _ = writeln!(md, "### {}\n\n{}", r.scene, conditions_table(&r.conditions));
-        }
-        md.push_str(&sweep_section(study));
-    }
-    if !study.corpus.is_empty() {
-        let _ = writeln!(
-            md,
-            "## Corpus ({} generated scenes; documents in `corpus/`)\n\n{}",
-            study.corpus.len(),
-            corpus_table(&study.corpus)
-        );
-    }
-    if !study.scenes.is_empty() {
-        let _ = writeln!(
-            md,
-            "## Bundled scenes: every method\n\nAll images of a scene are judged by LDR-FLIP \
-             (nv-flip, at the scene's pixels per degree, display-referred) against an \
-             independent reference (same scene and spp, another seed); the reference row's \
-             FLIP is that noise floor. Guo stops at the progressive run's ray count (noise \
-             twins included); uniform gets the progressive run's wall time. \"FLIP vs \
-             converged\" judges the same images against the truth ({TRUTH_SPP_FACTOR}× the \
-             samples, another seed). The reference and progressive times are medians of 3 \
-             alternating runs (one run in `--quick`); every other cell is one render. All in \
-             one run on this machine: the ratios measured side by side are the result, not \
-             the absolute times.\n"
-        );
-    }
-    if cfg.spp_factor != 1 {
-        let _ = writeln!(
-            md,
-            "Run with `--spp-factor {}`: every scene's samples per pixel are {}× those written \
-             in its file (the spp column shows the samples used).\n",
-            cfg.spp_factor, cfg.spp_factor
-        );
-    }
-    for r in &study.scenes {
-        md.push_str(&scene_table(r));
-        md.push('\n');
-    }
-    if cfg.bundled {
-        md.push_str(&peer_section(peer));
-    }
-    md.push_str(&judge);
-    let p = cfg.out_dir.join("report.md");
-    std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
-    let json = serde_json::json!({
-        "summary": targets,
-        "sweep_checks": sweep_checks(&study.scenes),
-        "scenes": study.scenes,
-        "corpus": study.corpus,
-        "peer": peer.as_ref().ok(),
-        "peer_error": peer.as_ref().err(),
-    });
-    let p = cfg.out_dir.join("results.json");
-    std::fs::write(&p, serde_json::to_vec_pretty(&json)?)
-        .with_context(|| format!("cannot write {}", p.display()))?;
-    // A corpus-only run has no t0 sweep to draw.
-    if !study.scenes.is_empty() {
-        plot(cfg, &study.scenes)?;
-    }
-    println!("{md}");
-    Ok(())
+    judge
 }
 
 /// The words the tables use, in plain terms, right after the summary.

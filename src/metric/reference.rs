@@ -14,6 +14,9 @@ use rand::Rng;
 /// Breadth-first: each tree level draws its cells' samples (seeds first, then uniform
 /// random pixels without replacement), evaluates all new pixels of the level in one
 /// parallel batch, then decides leaf or split per cell.
+///
+/// Long on purpose: one plain, top-to-bottom transcription of §3.2 is what makes it an
+/// oracle a reader can check against the spec line by line.
 #[must_use]
 pub(super) fn block_map_reference(
     model: &VisionModel,

@@ -4,6 +4,7 @@
 use super::reference::split;
 use super::*;
 use crate::raster::{LinearImage, Rgb};
+use rand::Rng;
 
 fn cell(x: u32, y: u32, w: u32, h: u32) -> Cell {
     Cell {
@@ -145,7 +146,7 @@ fn assert_same(got: &DistanceMap, want: &DistanceMap, what: &str) {
 }
 
 #[test]
-fn optimised_block_map_equals_the_issue_3_algorithm_bit_for_bit() {
+fn optimised_block_map_equals_the_plain_transcription_bit_for_bit() {
     // The optimised quad-tree must give exactly what the plain transcription of §3.2
     // (reference.rs) gives. A noisy progressive-like pair, seeds as the renderer
     // passes them (many, raster order, some duplicated and out of range), several metric

@@ -14,7 +14,7 @@
 //  5. `/?job=ID` reopens the finished job; the jobs list shows it;
 //  6. the cancel button cancels a running job;
 //  7. no uncaught page error at any point. A screenshot goes to SCREENSHOT.png.
-// Issue 17 (each with a screenshot beside SCREENSHOT.png, suffixed):
+// What a person needs besides (each with a screenshot beside SCREENSHOT.png, suffixed):
 //  - with no job open the state badge is hidden and the download links are disabled;
 //  - an example fills the editor as its file is written, and the draft survives a reload;
 //  - the job header shows size, samples and mode from the start; "Edit and re-render"
@@ -28,7 +28,7 @@
 //    reload it spans the iterations the server kept, and an earlier iteration's classes
 //    layer differs from the final (flat) one, with its legend and the slider in view at
 //    1440×900.
-// Issue 15 (uploads): a .glb, a .gltf (packed into a zip bundle by the page) and a zip of a
+// Uploads: a .glb, a .gltf (packed into a zip bundle by the page) and a zip of a
 // pbrt scene with its PLY files are each named before Render, sent with the size and
 // samples overrides as query parameters, stream and finish (screenshots -glb, -gltf,
 // -pbrt-zip); the import's warnings are shown; a truncated .glb is refused with the
