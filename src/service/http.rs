@@ -106,13 +106,43 @@ impl ApiError {
 
     /// The JSON body, also used for stream `error` messages.
     #[must_use]
-    pub fn body(&self) -> serde_json::Value {
-        let mut e = json!({ "code": self.code, "message": self.message, "path": self.path });
-        if self.problems.len() > 1 {
-            e["problems"] = json!(self.problems);
+    pub fn body(&self) -> ErrorBody {
+        ErrorBody {
+            error: self.detail(),
         }
-        json!({ "error": e })
     }
+
+    /// What the body's `error` holds.
+    #[must_use]
+    pub fn detail(&self) -> ErrorDetail {
+        ErrorDetail {
+            code: self.code,
+            message: self.message.clone(),
+            path: self.path.clone(),
+            problems: if self.problems.len() > 1 {
+                self.problems.clone()
+            } else {
+                Vec::new()
+            },
+        }
+    }
+}
+
+/// Every error answer's body: `{"error": {"code", "message", "path"}}` (service-api.md).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+/// An error as clients read it; `problems` lists every problem of a refused scene when
+/// there are several (the first is `message`/`path`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ErrorDetail {
+    pub code: ErrorCode,
+    pub message: String,
+    pub path: String,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub problems: Vec<crate::scene::Problem>,
 }
 
 impl From<StoreError> for ApiError {
@@ -193,7 +223,8 @@ pub async fn json_errors(State(st): State<AppState>, res: Response) -> Response 
         header::CONTENT_TYPE,
         HeaderValue::from_static("application/json"),
     );
-    let body = ApiError::new(code, message).body().to_string();
+    let body = serde_json::to_string(&ApiError::new(code, message).body())
+        .unwrap_or_else(|_| String::from("{}"));
     Response::from_parts(parts, axum::body::Body::from(body))
 }
 
@@ -604,7 +635,11 @@ async fn viewer() -> impl IntoResponse {
 async fn healthz(State(st): State<AppState>) -> Response {
     let (status, message) = match (st.jobs.store_fault(), st.jobs.ping_store().await) {
         (None, Ok(())) => {
-            let body = json!({ "status": "ok", "database": st.jobs.store_backend() });
+            let body = Health {
+                status: "ok",
+                database: Some(st.jobs.store_backend()),
+                error: None,
+            };
             return axum::Json(body).into_response();
         }
         // cluster.md: `/healthz` says whether the node reaches its database.
@@ -617,17 +652,29 @@ async fn healthz(State(st): State<AppState>) -> Response {
             format!("the job store cannot be written: {fault}"),
         ),
     };
-    let e = ApiError::unavailable(message, STORE_RETRY_AFTER_S);
-    let mut body = e.body();
-    body["status"] = json!(status);
+    let body = Health {
+        status,
+        database: None,
+        error: Some(ApiError::unavailable(message, STORE_RETRY_AFTER_S).detail()),
+    };
     let mut res = (StatusCode::SERVICE_UNAVAILABLE, axum::Json(body)).into_response();
     res.headers_mut()
         .insert(header::RETRY_AFTER, HeaderValue::from(STORE_RETRY_AFTER_S));
     res
 }
 
+/// `/healthz`'s body: `ok` with the store's backend, or what is wrong in the error shape.
+#[derive(Serialize)]
+struct Health {
+    status: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    database: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<ErrorDetail>,
+}
+
 async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
-    let text = super::metrics::render(&st.metrics, &st.jobs).await;
+    let text = super::metrics::render(&st.metrics, &st.jobs.store_counts().await);
     (
         [(
             header::CONTENT_TYPE,
@@ -1013,7 +1060,7 @@ mod tests {
     fn error_body_has_code_message_path() {
         let e = ApiError::new(ErrorCode::QueueFull, "full").at("x");
         assert_eq!(
-            e.body(),
+            serde_json::to_value(e.body()).unwrap(),
             json!({"error": {"code": "queue_full", "message": "full", "path": "x"}})
         );
         assert_eq!(ErrorCode::QueueFull.status(), StatusCode::TOO_MANY_REQUESTS);

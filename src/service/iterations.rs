@@ -10,7 +10,7 @@
 //! [`to_forget`] thins the kept iterations evenly, always keeping the first (where the
 //! distance layer carries the most) and the newest.
 
-use super::jobs::LiveFrame;
+use super::live::LiveFrame;
 use super::store::{self, Layer};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};

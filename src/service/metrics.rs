@@ -2,7 +2,6 @@
 //! pixels traced, render seconds, WebSocket watchers. Counters are plain atomics updated
 //! by the workers and the stream handlers; job counts come from the store when scraped.
 
-use super::jobs::Jobs;
 use super::store::JobState;
 use std::fmt::Write as _;
 use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
@@ -56,37 +55,71 @@ impl Drop for WatcherGuard {
     }
 }
 
+/// What the exposition reads from the job store when scraped.
+#[derive(Debug, Default)]
+pub struct StoreCounts {
+    /// Jobs by state (a state absent from the list has none).
+    pub by_state: Vec<(JobState, i64)>,
+    /// Jobs waiting for a worker, on every node.
+    pub queue_depth: i64,
+    /// This node's name in the jobs it claims (cluster nodes only).
+    pub node_name: Option<String>,
+}
+
 /// The exposition text (format 0.0.4).
-pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
+#[must_use]
+pub fn render(m: &Metrics, store: &StoreCounts) -> String {
+    let mut out = jobs_by_state(&store.by_state);
+    if let Some(name) = &store.node_name {
+        out.push_str(&node(name));
+    }
+    for (name, kind, help, value) in counters(m, store) {
+        let _ = writeln!(out, "# HELP {name} {help}");
+        let _ = writeln!(out, "# TYPE {name} {kind}");
+        let _ = writeln!(out, "{name} {value}");
+    }
+    out
+}
+
+fn jobs_by_state(counts: &[(JobState, i64)]) -> String {
     let mut out = String::new();
-    let counts = jobs.count_by_state().await.unwrap_or_default();
     let _ = writeln!(out, "# HELP glimpse_jobs Jobs in the store, by state.");
     let _ = writeln!(out, "# TYPE glimpse_jobs gauge");
     for st in JobState::ALL {
         let n = counts.iter().find(|(s, _)| *s == st).map_or(0, |(_, n)| *n);
         let _ = writeln!(out, "glimpse_jobs{{state=\"{}\"}} {n}", st.as_str());
     }
-    if let Some(name) = jobs.node_name() {
-        // Which node answered, for scrapers of many nodes (the name is ours or an
-        // operator's `--name`; quotes and backslashes escaped as the format asks).
-        let name = name
-            .replace('\\', "\\\\")
-            .replace('"', "\\\"")
-            .replace('\n', "\\n");
-        let _ = writeln!(
-            out,
-            "# HELP glimpse_node This node's name in the jobs it claims."
-        );
-        let _ = writeln!(out, "# TYPE glimpse_node gauge");
-        let _ = writeln!(out, "glimpse_node{{name=\"{name}\"}} 1");
-    }
-    let depth = jobs.queue_depth().await.unwrap_or_default();
-    let lines: [(&str, &str, &str, String); 11] = [
+    out
+}
+
+/// Which node answered, for scrapers of many nodes (the name is ours or an operator's
+/// `--name`; quotes and backslashes escaped as the format asks).
+fn node(name: &str) -> String {
+    let name = name
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n");
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "# HELP glimpse_node This node's name in the jobs it claims."
+    );
+    let _ = writeln!(out, "# TYPE glimpse_node gauge");
+    let _ = writeln!(out, "glimpse_node{{name=\"{name}\"}} 1");
+    out
+}
+
+/// (name, type, help, value) of every counter and gauge besides the jobs and the node.
+fn counters(
+    m: &Metrics,
+    store: &StoreCounts,
+) -> [(&'static str, &'static str, &'static str, String); 11] {
+    [
         (
             "glimpse_queue_depth",
             "gauge",
             "Jobs waiting for a worker (all nodes).",
-            depth.to_string(),
+            store.queue_depth.to_string(),
         ),
         (
             "glimpse_jobs_submitted_total",
@@ -151,11 +184,5 @@ pub async fn render(m: &Metrics, jobs: &Jobs) -> String {
             "Jobs with an expired lease that this node's reaper queued again or ended.",
             m.jobs_reaped.load(Ordering::Relaxed).to_string(),
         ),
-    ];
-    for (name, kind, help, value) in lines {
-        let _ = writeln!(out, "# HELP {name} {help}");
-        let _ = writeln!(out, "# TYPE {name} {kind}");
-        let _ = writeln!(out, "{name} {value}");
-    }
-    out
+    ]
 }

@@ -19,6 +19,7 @@ pub mod examples;
 pub mod http;
 pub mod iterations;
 pub mod jobs;
+pub mod live;
 pub mod metrics;
 pub mod parse_error;
 pub mod retention;

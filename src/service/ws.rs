@@ -22,10 +22,10 @@
 //! (`service::stall`). That is why the upgrade is done here with tokio-tungstenite
 //! rather than through axum's `WebSocketUpgrade`, whose messages cannot be fragmented.
 
-use super::http::{ApiError, AppState, ErrorCode, JobId};
+use super::http::{ApiError, AppState, ErrorCode, ErrorDetail, JobId};
 use super::jobs::{LiveFrame, Snapshot, StoredFrame, Watch};
 use super::metrics::WatcherGuard;
-use super::store::{JobError, JobRecord, JobState};
+use super::store::{JobError, JobRecord, JobState, Layer, Progress};
 use axum::extract::{Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::Response;
@@ -33,7 +33,7 @@ use bytes::Bytes;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use hyper_util::rt::TokioIo;
-use serde_json::{json, Value};
+use serde::Serialize;
 use std::sync::{Arc, Weak};
 use tokio_tungstenite::tungstenite::protocol::frame::coding::{CloseCode, Data, OpCode};
 use tokio_tungstenite::tungstenite::protocol::frame::Frame;
@@ -181,8 +181,35 @@ enum StreamError {
     Other(String),
 }
 
-async fn send_json(tx: &mut Tx, v: &Value) -> Result<(), StreamError> {
-    tx.send(Message::Text(v.to_string().into())).await?;
+/// A stream's text messages (service-api.md, the stream): one JSON object each, named by
+/// its `type`.
+#[derive(Serialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+enum StreamMessage<'a> {
+    /// The job as it is now.
+    State { job: &'a JobRecord },
+    /// A frame's header; its PNG follows as a binary message.
+    Frame {
+        iteration: u32,
+        /// Live frames only: a preview before the first iteration.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        preview: Option<bool>,
+        progress: Option<&'a Progress>,
+        layers: &'a [Layer],
+    },
+    /// The job succeeded or was cancelled: the last message.
+    Done { job: &'a JobRecord },
+    /// The job failed (with the job) or cannot be streamed (without).
+    Error {
+        error: ErrorDetail,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        job: Option<&'a JobRecord>,
+    },
+}
+
+async fn send_json(tx: &mut Tx, m: &StreamMessage<'_>) -> Result<(), StreamError> {
+    let text = serde_json::to_string(m).map_err(other)?;
+    tx.send(Message::Text(text.into())).await?;
     Ok(())
 }
 
@@ -207,23 +234,31 @@ async fn send_binary(tx: &mut Tx, data: Bytes) -> Result<(), StreamError> {
 /// takes them, not the frame (whose buffers are ~240 bytes a pixel).
 async fn send_frame(tx: &mut Tx, lf: Arc<LiveFrame>) -> Result<(), StreamError> {
     let png = lf.image_png().await.map_err(StreamError::Other)?;
-    let header = json!({"type": "frame", "iteration": lf.iteration, "preview": lf.preview, "progress": lf.progress, "layers": lf.layers});
+    let header = serde_json::to_string(&StreamMessage::Frame {
+        iteration: lf.iteration,
+        preview: Some(lf.preview),
+        progress: Some(&lf.progress),
+        layers: &lf.layers,
+    })
+    .map_err(other)?;
     drop(lf);
-    send_json(tx, &header).await?;
+    tx.send(Message::Text(header.into())).await?;
     send_binary(tx, png).await
 }
 
 /// The last message for a finished job.
-fn final_message(job: &JobRecord) -> Value {
+fn final_message(job: &JobRecord) -> StreamMessage<'_> {
     if job.state == JobState::Failed {
         let error = job
             .error
             .clone()
             .unwrap_or_else(|| JobError::new(ErrorCode::RenderFailed, "the render failed"));
-        let error = json!({"code": error.code, "message": error.message, "path": ""});
-        json!({"type": "error", "error": error, "job": job})
+        StreamMessage::Error {
+            error: ApiError::new(error.code, error.message).detail(),
+            job: Some(job),
+        }
     } else {
-        json!({"type": "done", "job": job})
+        StreamMessage::Done { job }
     }
 }
 
@@ -234,10 +269,11 @@ async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> 
         Watch::NotFound => {
             // Unknown after a race with DELETE.
             let e = ApiError::not_found_job(&id.to_string());
-            return send_json(tx, &json!({"type": "error", "error": e.body()["error"]})).await;
+            let error = e.detail();
+            return send_json(tx, &StreamMessage::Error { error, job: None }).await;
         }
     };
-    send_json(tx, &json!({"type": "state", "job": job})).await?;
+    send_json(tx, &StreamMessage::State { job: &job }).await?;
     if let Some(frame) = frame {
         send_stored_frame(tx, &job, frame).await?;
     }
@@ -267,7 +303,7 @@ async fn follow(
     mut wrx: tokio::sync::watch::Receiver<Arc<Snapshot>>,
 ) -> Result<(), StreamError> {
     let snap: Arc<Snapshot> = wrx.borrow_and_update().clone();
-    send_json(tx, &json!({"type": "state", "job": snap.job})).await?;
+    send_json(tx, &StreamMessage::State { job: &snap.job }).await?;
     drop(snap);
     // The frame last sent, by identity only: holding it would keep its buffers alive
     // while this client is slow.
@@ -280,7 +316,7 @@ async fn follow(
             Some(Watch::Live(next)) => {
                 wrx = next;
                 let job = wrx.borrow().job.clone();
-                send_json(tx, &json!({"type": "state", "job": job})).await?;
+                send_json(tx, &StreamMessage::State { job: &job }).await?;
             }
             Some(Watch::Stored(job, frame)) => {
                 if let Some(frame) = frame {
@@ -295,7 +331,7 @@ async fn follow(
         if job.state.is_finished() {
             send_json(tx, &final_message(&job)).await?;
         } else {
-            send_json(tx, &json!({"type": "state", "job": job})).await?;
+            send_json(tx, &StreamMessage::State { job: &job }).await?;
         }
     }
     Ok(())
@@ -346,7 +382,12 @@ async fn send_stored_frame(
     let iteration = job.progress.as_ref().map_or(0, |p| p.iteration);
     send_json(
         tx,
-        &json!({"type": "frame", "iteration": iteration, "progress": job.progress, "layers": frame.layers}),
+        &StreamMessage::Frame {
+            iteration,
+            preview: None,
+            progress: job.progress.as_ref(),
+            layers: &frame.layers,
+        },
     )
     .await?;
     // Fragments of exactly the length the file had: a message's size is fixed once its
