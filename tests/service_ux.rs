@@ -311,3 +311,84 @@ async fn earlier_iterations_are_kept_with_layers_that_still_show_the_method() {
         .unwrap();
     assert_eq!(r.status(), 404);
 }
+
+/// A room (floor, ceiling, side and front walls) whose only lamp stands just inside the
+/// missing back wall and faces out through it: the ceiling and the floor lie beside it
+/// at grazing angles, so some object lies in its hemisphere, yet almost none of its light
+/// reaches anything and the picture is nearly black.
+fn lamp_facing_out_of_an_open_room() -> String {
+    let quad = |corner: &str, u: &str, v: &str, m: &str| {
+        format!(
+            r#"{{ "type": "quad", "material": "{m}", "corner": {corner}, "edge_u": {u}, "edge_v": {v} }}"#
+        )
+    };
+    let objects = [
+        quad("[-2, 0, -2]", "[0, 0, 4]", "[4, 0, 0]", "white"),
+        quad("[-2, 2, -2]", "[4, 0, 0]", "[0, 0, 4]", "white"),
+        quad("[-2, 0, -2]", "[0, 2, 0]", "[0, 0, 4]", "white"),
+        quad("[2, 0, -2]", "[0, 0, 4]", "[0, 2, 0]", "white"),
+        quad("[-2, 0, 2]", "[4, 0, 0]", "[0, 2, 0]", "white"),
+        // edge_u × edge_v = x × −y = −z: out of the room, through the missing wall.
+        quad("[-0.5, 1.5, -1.9]", "[1, 0, 0]", "[0, -1, 0]", "lamp"),
+    ]
+    .join(",\n    ");
+    format!(
+        r#"{{
+  "version": 1, "name": "open room",
+  "image": {{ "width": 48, "height": 36 }},
+  "camera": {{ "position": [0, 1, 1.9], "look_at": [0, 1, 0], "fov_y": 60 }},
+  "materials": {{ "white": {{ "type": "diffuse", "albedo": [0.7, 0.7, 0.7] }},
+                 "lamp": {{ "type": "emissive", "radiance": [10, 10, 10] }} }},
+  "objects": [
+    {objects}
+  ],
+  "render": {{ "mode": "reference", "samples_per_pixel": 2 }}
+}}"#
+    )
+}
+
+#[tokio::test]
+async fn a_lamp_facing_out_of_an_open_room_is_named_in_the_201() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let r = c
+        .post(format!("http://127.0.0.1:{port}/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(lamp_facing_out_of_an_open_room())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let warnings = created["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1, "{created}");
+    let w = warnings[0].as_str().unwrap();
+    assert!(
+        w.starts_with("objects[5]: only") && w.contains("which way it faces"),
+        "{w}"
+    );
+}
+
+#[test]
+fn the_command_line_names_a_lamp_facing_out_of_an_open_room() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("open.json"),
+        lamp_facing_out_of_an_open_room(),
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(dir.path())
+        .args(["render", "open.json", "--output", "open.png"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with("warning: objects[5]: only") && l.contains("which way it faces")),
+        "{err}"
+    );
+}

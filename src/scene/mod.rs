@@ -9,6 +9,7 @@ pub mod examples;
 pub mod image;
 pub mod obj;
 pub mod transform;
+pub mod reach;
 pub mod validate;
 pub mod warnings;
 
