@@ -190,7 +190,7 @@ async fn every_public_scene_posted_as_a_zip_renders_unchanged() {
             .unwrap_or_default();
         eprintln!("{what}: 201 in {:?}, warnings {warnings:?}", t.elapsed());
         assert_no_mistake(&what, &warnings);
-        jobs.push((what, v["job"]["id"].as_str().unwrap().to_owned()));
+        jobs.push((what, v["id"].as_str().unwrap().to_owned()));
     }
     for (what, id) in &jobs {
         let deadline = Instant::now() + Duration::from_secs(300);
