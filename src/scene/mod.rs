@@ -8,8 +8,8 @@ pub mod duplicates;
 pub mod examples;
 pub mod image;
 pub mod obj;
-pub mod transform;
 pub mod reach;
+pub mod transform;
 pub mod validate;
 pub mod warnings;
 
