@@ -392,3 +392,47 @@ fn the_command_line_names_a_lamp_facing_out_of_an_open_room() {
         "{err}"
     );
 }
+
+#[tokio::test]
+async fn the_serve_limit_flags_refuse_with_422_or_cap_bounces_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let flags = ["--max-width", "32", "--max-bounces", "8"];
+    let _server = common::spawn(dir.path(), port, None, &flags, &[], &c).await;
+    let post = |body: String| {
+        c.post(format!("http://127.0.0.1:{port}/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+    };
+    // 40 pixels wide over a limit of 32: a parameter, not a body too large.
+    let r = post(LIT_SCENE.to_owned()).await.unwrap();
+    assert_eq!(r.status(), 422);
+    let e: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(e["error"]["code"], "over_limit", "{e}");
+    assert_eq!(e["error"]["path"], "image.width", "{e}");
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("limit of 32") && m.contains("glimpse serve --max-width"),
+        "{m}"
+    );
+    // pbrt's `maxdepth 65` over a cap of 8: accepted, capped, and said.
+    let deep = LIT_SCENE
+        .replace(
+            r#""width": 40, "height": 30"#,
+            r#""width": 32, "height": 24"#,
+        )
+        .replace(r#""max_bounces": 2"#, r#""max_bounces": 65"#);
+    let r = post(deep).await.unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let w = created["warnings"].as_array().expect("warnings");
+    assert_eq!(w.len(), 1, "{created}");
+    let w = w[0].as_str().unwrap();
+    assert!(
+        w.starts_with("render.max_bounces: 65 is above this server's cap of 8")
+            && w.contains("glimpse serve --max-bounces"),
+        "{w}"
+    );
+}
