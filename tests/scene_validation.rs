@@ -38,7 +38,7 @@ fn kind_name(k: SceneErrorKind) -> &'static str {
     match k {
         SceneErrorKind::InvalidJson => "invalid_json",
         SceneErrorKind::InvalidScene => "invalid_scene",
-        SceneErrorKind::TooLarge => "too_large",
+        SceneErrorKind::TooLarge => "over_limit",
     }
 }
 

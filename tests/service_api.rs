@@ -572,8 +572,7 @@ async fn bad_scenes_get_their_code_and_path() {
         let b: Value = r.json().await.unwrap_or(Value::Null);
         let want_status = match code.as_str() {
             "invalid_json" => 400,
-            "invalid_scene" => 422,
-            "too_large" => 413,
+            "invalid_scene" | "over_limit" => 422,
             other => panic!("{}: unknown expected code {other}", case.display()),
         };
         if status != want_status
@@ -721,12 +720,18 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
         assert!(resp.starts_with("HTTP/1.1 413"), "{resp}");
         assert!(resp.contains("\"too_large\""), "{resp}");
     }
-    // Limits of the scene itself are 413 and name the limit.
+    // Limits of the scene itself are parameters, not a body too large: 422 `over_limit`,
+    // naming the limit and the server flag that raises it.
     let r = s.post_scene(&scene(20000, 20000, "reference", 1)).await;
-    let b = error_of(r, 413, "too_large").await;
+    let b = error_of(r, 422, "over_limit").await;
     assert!(
         b["error"]["path"].as_str().unwrap().starts_with("image"),
         "{b}"
+    );
+    let m = b["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("limit of 4096") && m.contains("glimpse serve --max-width"),
+        "{m}"
     );
     // No `obj` object over the network: the server never reads its own files.
     let mut sc = scene(8, 8, "reference", 1);

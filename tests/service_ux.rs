@@ -311,3 +311,128 @@ async fn earlier_iterations_are_kept_with_layers_that_still_show_the_method() {
         .unwrap();
     assert_eq!(r.status(), 404);
 }
+
+/// A room (floor, ceiling, side and front walls) whose only lamp stands just inside the
+/// missing back wall and faces out through it: the ceiling and the floor lie beside it
+/// at grazing angles, so some object lies in its hemisphere, yet almost none of its light
+/// reaches anything and the picture is nearly black.
+fn lamp_facing_out_of_an_open_room() -> String {
+    let quad = |corner: &str, u: &str, v: &str, m: &str| {
+        format!(
+            r#"{{ "type": "quad", "material": "{m}", "corner": {corner}, "edge_u": {u}, "edge_v": {v} }}"#
+        )
+    };
+    let objects = [
+        quad("[-2, 0, -2]", "[0, 0, 4]", "[4, 0, 0]", "white"),
+        quad("[-2, 2, -2]", "[4, 0, 0]", "[0, 0, 4]", "white"),
+        quad("[-2, 0, -2]", "[0, 2, 0]", "[0, 0, 4]", "white"),
+        quad("[2, 0, -2]", "[0, 0, 4]", "[0, 2, 0]", "white"),
+        quad("[-2, 0, 2]", "[4, 0, 0]", "[0, 2, 0]", "white"),
+        // edge_u × edge_v = x × −y = −z: out of the room, through the missing wall.
+        quad("[-0.5, 1.5, -1.9]", "[1, 0, 0]", "[0, -1, 0]", "lamp"),
+    ]
+    .join(",\n    ");
+    format!(
+        r#"{{
+  "version": 1, "name": "open room",
+  "image": {{ "width": 48, "height": 36 }},
+  "camera": {{ "position": [0, 1, 1.9], "look_at": [0, 1, 0], "fov_y": 60 }},
+  "materials": {{ "white": {{ "type": "diffuse", "albedo": [0.7, 0.7, 0.7] }},
+                 "lamp": {{ "type": "emissive", "radiance": [10, 10, 10] }} }},
+  "objects": [
+    {objects}
+  ],
+  "render": {{ "mode": "reference", "samples_per_pixel": 2 }}
+}}"#
+    )
+}
+
+#[tokio::test]
+async fn a_lamp_facing_out_of_an_open_room_is_named_in_the_201() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let r = c
+        .post(format!("http://127.0.0.1:{port}/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(lamp_facing_out_of_an_open_room())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let warnings = created["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1, "{created}");
+    let w = warnings[0].as_str().unwrap();
+    assert!(
+        w.starts_with("objects[5]: only") && w.contains("which way it faces"),
+        "{w}"
+    );
+}
+
+#[test]
+fn the_command_line_names_a_lamp_facing_out_of_an_open_room() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("open.json"),
+        lamp_facing_out_of_an_open_room(),
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(dir.path())
+        .args(["render", "open.json", "--output", "open.png"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with("warning: objects[5]: only") && l.contains("which way it faces")),
+        "{err}"
+    );
+}
+
+#[tokio::test]
+async fn the_serve_limit_flags_refuse_with_422_or_cap_bounces_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let flags = ["--max-width", "32", "--max-bounces", "8"];
+    let _server = common::spawn(dir.path(), port, None, &flags, &[], &c).await;
+    let post = |body: String| {
+        c.post(format!("http://127.0.0.1:{port}/v1/jobs"))
+            .header("content-type", "application/json")
+            .body(body)
+            .send()
+    };
+    // 40 pixels wide over a limit of 32: a parameter, not a body too large.
+    let r = post(LIT_SCENE.to_owned()).await.unwrap();
+    assert_eq!(r.status(), 422);
+    let e: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(e["error"]["code"], "over_limit", "{e}");
+    assert_eq!(e["error"]["path"], "image.width", "{e}");
+    let m = e["error"]["message"].as_str().unwrap();
+    assert!(
+        m.contains("limit of 32") && m.contains("glimpse serve --max-width"),
+        "{m}"
+    );
+    // pbrt's `maxdepth 65` over a cap of 8: accepted, capped, and said.
+    let deep = LIT_SCENE
+        .replace(
+            r#""width": 40, "height": 30"#,
+            r#""width": 32, "height": 24"#,
+        )
+        .replace(r#""max_bounces": 2"#, r#""max_bounces": 65"#);
+    let r = post(deep).await.unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let w = created["warnings"].as_array().expect("warnings");
+    assert_eq!(w.len(), 1, "{created}");
+    let w = w[0].as_str().unwrap();
+    assert!(
+        w.starts_with("render.max_bounces: 65 is above this server's cap of 8")
+            && w.contains("glimpse serve --max-bounces"),
+        "{w}"
+    );
+}

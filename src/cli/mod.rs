@@ -70,9 +70,31 @@ pub struct ServeArgs {
     /// Jobs that may wait for a worker before new submissions get 429 queue_full.
     #[arg(long, default_value_t = crate::service::DEFAULT_QUEUE_CAPACITY)]
     pub queue: usize,
-    /// Largest image a request may ask for, in pixels (width × height).
-    #[arg(long)]
+    /// Largest image a request may ask for, in pixels (width × height; default 4096²).
+    #[arg(long, value_name = "PIXELS")]
     pub max_pixels: Option<u64>,
+    /// Largest image width a request may ask for (default 4096).
+    #[arg(long, value_name = "PIXELS")]
+    pub max_width: Option<u32>,
+    /// Largest image height a request may ask for (default 4096).
+    #[arg(long, value_name = "PIXELS")]
+    pub max_height: Option<u32>,
+    /// Most samples per pixel a request may ask for (default 4096).
+    #[arg(long, value_name = "N")]
+    pub max_spp: Option<u32>,
+    /// Most paths one render may trace: samples per pixel × pixels (default 2^32).
+    #[arg(long, value_name = "N")]
+    pub max_samples: Option<u64>,
+    /// Most objects in a request's scene (default 10000).
+    #[arg(long, value_name = "N")]
+    pub max_objects: Option<usize>,
+    /// Most triangles in a request's scene, imported meshes included (default 1000000).
+    #[arg(long, value_name = "N")]
+    pub max_triangles: Option<usize>,
+    /// Bounces a path may take at most (default 1024); a scene asking for more is
+    /// rendered with this many, with a warning.
+    #[arg(long, value_name = "N")]
+    pub max_bounces: Option<u32>,
     /// Largest request body in bytes.
     #[arg(long, default_value_t = crate::service::DEFAULT_MAX_BODY_BYTES)]
     pub max_body: usize,
@@ -225,6 +247,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 fn serve(a: ServeArgs) -> anyhow::Result<()> {
+    let mut limits = crate::service::server_limits();
+    set_limits(&mut limits, &a);
     if a.queue == 0 {
         anyhow::bail!("--queue must be at least 1");
     }
@@ -266,11 +290,22 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
                 .then(|| std::time::Duration::from_secs_f64(a.keep_days * 86_400.0)),
             max_bytes: (a.keep_gb > 0.0).then_some((a.keep_gb * 1e9) as u64),
         };
-        if let Some(p) = a.max_pixels {
-            config.limits.max_pixels = p;
-        }
+        config.limits = limits;
         crate::service::run(listener, config, shutdown_signal()).await
     })
+}
+
+/// The request limits given on the command line (`--max-*`), over the defaults of
+/// `service::server_limits`.
+fn set_limits(l: &mut crate::scene::Limits, a: &ServeArgs) {
+    l.max_pixels = a.max_pixels.unwrap_or(l.max_pixels);
+    l.max_width = a.max_width.unwrap_or(l.max_width);
+    l.max_height = a.max_height.unwrap_or(l.max_height);
+    l.max_samples_per_pixel = a.max_spp.unwrap_or(l.max_samples_per_pixel);
+    l.max_sample_budget = a.max_samples.unwrap_or(l.max_sample_budget);
+    l.max_objects = a.max_objects.unwrap_or(l.max_objects);
+    l.max_triangles = a.max_triangles.unwrap_or(l.max_triangles);
+    l.max_bounces = a.max_bounces.unwrap_or(l.max_bounces);
 }
 
 /// `glimpse worker`: a rayon pool of `--threads`, then the worker until Ctrl-C or SIGTERM.

@@ -8,6 +8,7 @@ pub mod duplicates;
 pub mod examples;
 pub mod image;
 pub mod obj;
+pub mod reach;
 pub mod transform;
 pub mod validate;
 pub mod warnings;

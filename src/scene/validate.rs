@@ -84,7 +84,7 @@ pub enum SceneErrorKind {
     InvalidJson,
     /// JSON, but not a valid scene (HTTP 422 `invalid_scene`).
     InvalidScene,
-    /// Valid, but above a limit (HTTP 413/422 `too_large`); the message names the limit.
+    /// Valid, but above a limit (HTTP 422 `over_limit`); the message names the limit.
     TooLarge,
 }
 
@@ -537,12 +537,15 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
             );
         }
     }
+    // A bounce limit above the cap is capped, not refused: scenes people download carry
+    // pbrt's `maxdepth 65` or Mitsuba's `max_depth` of 64-100, and Russian roulette
+    // (`tracer::integrator`, `RR_START`) already ends nearly every path long before.
     if doc.render.max_bounces > u64::from(limits.max_bounces) {
-        cx.limit(
+        cx.warn(
             "render.max_bounces",
             format!(
-                "{} exceeds this server's limit of {}",
-                doc.render.max_bounces, limits.max_bounces
+                "{} is above this server's cap of {}: paths stop after {} bounces (Russian roulette ends nearly all of them long before, so the picture barely changes)",
+                doc.render.max_bounces, limits.max_bounces, limits.max_bounces
             ),
         );
     }
@@ -628,7 +631,8 @@ fn build(doc: &SceneDoc, origin: &SceneOrigin, limits: &Limits) -> Result<Scene,
         .enumerate()
         .map(|(i, l)| check_light(&mut cx, &format!("lights[{i}]"), l))
         .collect();
-    let render = check_render(&mut cx, &doc.render);
+    let mut render = check_render(&mut cx, &doc.render);
+    render.max_bounces = render.max_bounces.min(limits.max_bounces);
     let progressive = check_progressive(&mut cx, &doc.progressive);
 
     if cx.unlisted_errors > 0 {
@@ -2057,10 +2061,19 @@ mod tests {
             (SceneErrorKind::TooLarge, "render.samples_per_pixel"),
             "{m}"
         );
-        let (k, p, _) = refused(&with(|v| v["render"] = json!({"max_bounces": 1000})).to_string());
-        assert_eq!(
-            (k, p.as_str()),
-            (SceneErrorKind::TooLarge, "render.max_bounces")
+        // A bounce limit above the cap is capped with a warning naming both, not refused.
+        let deep = parse(&with(|v| v["render"] = json!({"max_bounces": 1000}))).unwrap();
+        assert_eq!(deep.render.max_bounces, 64);
+        let w = deep
+            .warnings
+            .iter()
+            .find(|w| w.path == "render.max_bounces")
+            .expect("a warning on render.max_bounces");
+        assert!(
+            w.message
+                .starts_with("1000 is above this server's cap of 64"),
+            "{}",
+            w.message
         );
         let (k, p, _) = refused(&with(|v| v["image"]["width"] = json!(1u64 << 40)).to_string());
         assert_eq!((k, p.as_str()), (SceneErrorKind::TooLarge, "image.width"));

@@ -2,12 +2,16 @@
 //! document is accepted, reported beside the soft problems of validation
 //! ([`Scene::warnings`]: the job's `warnings`, the command line's stderr, the viewer).
 //!
-//! Pure geometry, no tracing, and conservative: each check warns only when the scene
+//! Pure geometry, no path tracing, and conservative: each check warns only when the scene
 //! cannot look as intended, never on a mere suspicion.
 //! - An emitter facing away from all geometry: a one-sided emitter (scene-format.md
 //!   `emissive`, emitting on the side of its geometric normal) none of whose triangles
 //!   has any other object in front of it lights nothing; the picture is black but for the
 //!   emitter's own edges.
+//! - An emitter whose light almost all escapes into the void (a lamp facing out of an
+//!   open room, a point light outside the scene): under [`super::reach::LIMIT`] of a few
+//!   hundred rays cast from it reach any other object (`reach`, the one check that casts
+//!   rays; bounded).
 //! - Almost no light reaching the camera: an upper bound of the brightest radiance any
 //!   pixel can show (an emitter seen directly, a white Lambertian surface facing a light at
 //!   its nearest object: `I/(π d²)` for a point light, `E/π` for a directional one) times
@@ -37,6 +41,7 @@ const MAX_ENCLOSING_TRIANGLES: usize = 1 << 20;
 #[must_use]
 pub fn check(scene: &Scene) -> Vec<Problem> {
     let mut out = Vec::new();
+    let mut facing_away = Vec::new();
     let bounds: Vec<Aabb> = scene.shapes.iter().map(Aabb::of).collect();
     for (k, shape) in scene.shapes.iter().enumerate() {
         if let Shape::Triangles {
@@ -49,6 +54,7 @@ pub fn check(scene: &Scene) -> Vec<Problem> {
             }) = scene.materials.get(*material as usize)
             {
                 if faces_nothing(triangles, k, &bounds) {
+                    facing_away.push(k);
                     out.push(Problem {
                         path: format!("objects[{k}]"),
                         message: "this one-sided emitter faces away from every other object, so it lights nothing (the picture will be dark); turn it around (reverse its winding or flip its quad's edges) or make it two_sided".into(),
@@ -57,6 +63,8 @@ pub fn check(scene: &Scene) -> Vec<Problem> {
             }
         }
     }
+    // Then every emitter whose light (nearly) all escapes: rays cast, `reach`.
+    out.extend(super::reach::check(scene, &facing_away));
     let brightest = brightest_radiance(scene, &bounds) * scene.display.exposure;
     if brightest < DARK_LIMIT {
         out.push(Problem {

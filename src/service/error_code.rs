@@ -14,7 +14,14 @@ pub enum ErrorCode {
     /// Not valid HTTP/1.1 (a malformed header, a repeated `Content-Length`): hyper's own
     /// answer, given the error body by `parse_error`.
     InvalidRequest,
+    /// The request body (or a URI or header) is larger than the server accepts (413; 414
+    /// and 431 for hyper's own answers).
     TooLarge,
+    /// A parameter of the scene (pixels, samples, samples × pixels, objects, triangles,
+    /// texels, files in a bundle) is above this server's limit: the document is fine, the
+    /// server will not do that much (422; the message names the limit and the flag that
+    /// raises it).
+    OverLimit,
     NotFound,
     MethodNotAllowed,
     Conflict,
@@ -48,7 +55,7 @@ impl ErrorCode {
             ErrorCode::InvalidJson | ErrorCode::InvalidParameter | ErrorCode::InvalidRequest => {
                 StatusCode::BAD_REQUEST
             }
-            ErrorCode::InvalidScene => StatusCode::UNPROCESSABLE_ENTITY,
+            ErrorCode::InvalidScene | ErrorCode::OverLimit => StatusCode::UNPROCESSABLE_ENTITY,
             ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             ErrorCode::NotFound => StatusCode::NOT_FOUND,
             ErrorCode::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,

@@ -11,7 +11,7 @@ use super::jobs::{CancelOutcome, DeleteOutcome, FrameBytes, FrameLookup, Jobs, S
 use super::metrics::Metrics;
 use super::store::{clip, JobRecord, JobState, Layer, StoreError};
 use super::{auth, examples, ws};
-use crate::scene::{parse_scene, RenderMode, SceneErrorKind, SceneOrigin};
+use crate::scene::{parse_scene, Problem, RenderMode, SceneErrorKind, SceneOrigin};
 use axum::extract::{FromRequest, FromRequestParts, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -359,7 +359,7 @@ impl FromRequest<AppState> for SceneBody {
         let bytes = read_body(req, state).await.map_err(|mut e| {
             if e.code == ErrorCode::TooLarge {
                 e.message = format!(
-                    "the request body is larger than the limit of {} bytes",
+                    "the request body is larger than the limit of {} bytes; the server's operator can raise it with `glimpse serve --max-body`",
                     state.max_body_bytes
                 );
             }
@@ -731,12 +731,17 @@ async fn create_job(
     .await
     .map_err(|e| ApiError::internal("validating the scene", &e))?;
     drop(permit);
-    let scene = parsed.map_err(|e| {
+    let scene = parsed.map_err(|mut e| {
         let code = match e.kind {
             SceneErrorKind::InvalidJson => ErrorCode::InvalidJson,
             SceneErrorKind::InvalidScene => ErrorCode::InvalidScene,
-            SceneErrorKind::TooLarge => ErrorCode::TooLarge,
+            // A parameter above a limit is not a body too large (413): 422 with the flag
+            // that raises it.
+            SceneErrorKind::TooLarge => ErrorCode::OverLimit,
         };
+        for p in &mut e.problems {
+            p.message = with_raise_hint(&p.path, &p.message);
+        }
         let first = e.problems.first();
         let mut err = ApiError::new(
             code,
@@ -757,7 +762,13 @@ async fn create_job(
     // What the import approximated, then what is valid but almost surely wrong.
     let warnings: Vec<String> = warnings
         .into_iter()
-        .chain(scene.warnings.iter().map(ToString::to_string))
+        .chain(scene.warnings.iter().map(|w| {
+            Problem {
+                path: w.path.clone(),
+                message: with_raise_hint(&w.path, &w.message),
+            }
+            .to_string()
+        }))
         .collect();
     let name = if scene.name.trim().is_empty() {
         "untitled".to_owned()
@@ -1052,9 +1063,74 @@ fn missing_layer(layer: Layer) -> ApiError {
 /// Read size when streaming a stored file.
 const FILE_CHUNK: usize = 16 * 1024;
 
+/// The `glimpse serve` flag that raises the limit a problem (or the bounce cap a warning)
+/// at `path` names, from validation's and the importers' own wording (`scene::validate`:
+/// "exceeds this server's limit", "above this server's cap"; "the limit of N
+/// triangles"); `None` for anything else and for the fixed limits (texels, file sizes,
+/// bundle entries).
+fn raise_flag(path: &str, message: &str) -> Option<&'static str> {
+    // The importers' triangle limits are the scene's (`ImportLimits::from_scene`).
+    if message.contains("limit of") && message.contains(" triangles") {
+        return Some("--max-triangles");
+    }
+    if !message.contains("this server's limit") && !message.contains("this server's cap") {
+        return None;
+    }
+    Some(match path {
+        "image.width" => "--max-width",
+        "image.height" => "--max-height",
+        "image" => "--max-pixels",
+        "render.samples_per_pixel" if message.contains("samples per render") => "--max-samples",
+        "render.samples_per_pixel" => "--max-spp",
+        "render.max_bounces" => "--max-bounces",
+        _ if message.contains(" objects exceed") => "--max-objects",
+        _ if message.contains(" triangles exceed") => "--max-triangles",
+        _ => return None,
+    })
+}
+
+/// `message` with the flag that raises its limit appended, when there is one.
+fn with_raise_hint(path: &str, message: &str) -> String {
+    match raise_flag(path, message) {
+        Some(flag) => {
+            format!("{message}; the server's operator can raise it with `glimpse serve {flag}`")
+        }
+        None => message.to_owned(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parameter_limits_name_the_flag_that_raises_them() {
+        for (path, message, flag) in [
+            ("image.width", "20000 exceeds this server's limit of 4096", "--max-width"),
+            ("image", "5000×5000 = 25000000 pixels exceeds this server's limit of 16777216 pixels", "--max-pixels"),
+            ("render.samples_per_pixel", "5000 exceeds this server's limit of 4096", "--max-spp"),
+            ("render.samples_per_pixel", "4096 samples × 4194304 pixels = 17179869184 samples exceeds this server's limit of 4294967296 samples per render", "--max-samples"),
+            ("render.max_bounces", "5000 is above this server's cap of 1024: paths stop", "--max-bounces"),
+            ("objects", "10001 objects exceed this server's limit of 10000", "--max-objects"),
+            ("objects", "12 triangles exceed this server's limit of 11", "--max-triangles"),
+            ("scene.pbrt:3:1", "the scene has more than the limit of 11 triangles", "--max-triangles"),
+        ] {
+            assert_eq!(raise_flag(path, message), Some(flag), "{path}: {message}");
+            assert!(with_raise_hint(path, message).ends_with(&format!("`glimpse serve {flag}`")));
+        }
+        assert_eq!(
+            raise_flag(
+                "bundle",
+                "the bundle has 10001 entries, more than the limit of 10000"
+            ),
+            None
+        );
+        assert_eq!(raise_flag("render.max_bounces", "must be ≥ 0"), None);
+        assert_eq!(
+            ErrorCode::OverLimit.status(),
+            StatusCode::UNPROCESSABLE_ENTITY
+        );
+    }
 
     #[test]
     fn error_body_has_code_message_path() {
