@@ -20,7 +20,6 @@ use axum::Router;
 use bytes::Bytes;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
-use serde_json::json;
 use std::collections::HashMap;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -1102,6 +1101,7 @@ fn with_raise_hint(path: &str, message: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use serde_json::json;
 
     #[test]
     fn parameter_limits_name_the_flag_that_raises_them() {

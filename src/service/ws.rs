@@ -208,7 +208,14 @@ enum StreamMessage<'a> {
 }
 
 async fn send_json(tx: &mut Tx, m: &StreamMessage<'_>) -> Result<(), StreamError> {
-    let text = serde_json::to_string(m).map_err(other)?;
+    send_text(tx, to_text(m)?).await
+}
+
+fn to_text(m: &StreamMessage<'_>) -> Result<String, StreamError> {
+    serde_json::to_string(m).map_err(other)
+}
+
+async fn send_text(tx: &mut Tx, text: String) -> Result<(), StreamError> {
     tx.send(Message::Text(text.into())).await?;
     Ok(())
 }
@@ -234,15 +241,14 @@ async fn send_binary(tx: &mut Tx, data: Bytes) -> Result<(), StreamError> {
 /// takes them, not the frame (whose buffers are ~240 bytes a pixel).
 async fn send_frame(tx: &mut Tx, lf: Arc<LiveFrame>) -> Result<(), StreamError> {
     let png = lf.image_png().await.map_err(StreamError::Other)?;
-    let header = serde_json::to_string(&StreamMessage::Frame {
+    let header = to_text(&StreamMessage::Frame {
         iteration: lf.iteration,
         preview: Some(lf.preview),
         progress: Some(&lf.progress),
         layers: &lf.layers,
-    })
-    .map_err(other)?;
+    })?;
     drop(lf);
-    tx.send(Message::Text(header.into())).await?;
+    send_text(tx, header).await?;
     send_binary(tx, png).await
 }
 
@@ -347,7 +353,12 @@ async fn follow_channel(
 ) -> Result<bool, StreamError> {
     loop {
         let s = wrx.borrow_and_update().clone();
-        let finished = s.job.state.is_finished().then(|| final_message(&s.job));
+        // Serialised now, so the snapshot (and its frame) is not held while the client
+        // reads.
+        let finished = match s.job.state.is_finished() {
+            true => Some(to_text(&final_message(&s.job))?),
+            false => None,
+        };
         let fresh = s
             .frame
             .clone()
@@ -358,7 +369,7 @@ async fn follow_channel(
             send_frame(tx, f).await?;
         }
         if let Some(done) = finished {
-            send_json(tx, &done).await?;
+            send_text(tx, done).await?;
             return Ok(true);
         }
         if wrx.changed().await.is_err() {
