@@ -405,6 +405,9 @@ fn bounding_sphere(aabbs: &[Aabb]) -> (Vec3, f32) {
     }
 }
 
+/// The BVH (none for an empty scene) and the primitives with their info in its leaf order.
+type LeafOrdered = (Option<CwBvh>, Vec<Prim>, Vec<PrimInfo>);
+
 /// Builds the BVH over `aabbs` (on a thread of its own for a large scene, abandoned on a
 /// cancel) and reorders `prims` and `info` to its leaf order, so that the index the
 /// traversal hands back addresses them directly. No BVH for an empty scene.
@@ -413,7 +416,7 @@ fn in_leaf_order(
     prims: Vec<Prim>,
     info: Vec<PrimInfo>,
     cancel: &CancelToken,
-) -> Result<(Option<CwBvh>, Vec<Prim>, Vec<PrimInfo>), Cancelled> {
+) -> Result<LeafOrdered, Cancelled> {
     if prims.is_empty() {
         return Ok((None, prims, info));
     }
