@@ -188,6 +188,39 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     // Refused before any work: a wrong extension must not cost a render.
     let format = OutputFormat::of(&a.output).map_err(anyhow::Error::msg)?;
+    let scene = load_scene(a)?;
+    let tracer = PathTracer::new(&scene);
+    let pixels = u64::from(scene.width) * u64::from(scene.height);
+    let opts = RenderOptions {
+        mode: a.mode,
+        max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
+        max_time: a.max_time,
+        noise_compensation: a.no_noise_compensation.then_some(false),
+    };
+    let mut iterations = a
+        .layers
+        .as_ref()
+        .map(|dir| IterationFiles::new(dir, scene.display.exposure));
+    let frame = render_with_progress(&scene, &tracer, &opts, &mut iterations)?;
+    write_outputs(a, format, &frame, scene.display.exposure)?;
+    if let Some(e) = iterations.and_then(|f| f.error) {
+        return Err(e);
+    }
+    eprintln!(
+        "{}: {}x{} {} in {}, {:.1} % of pixels traced",
+        a.output.display(),
+        scene.width,
+        scene.height,
+        frame.stats.mode,
+        eta::seconds(frame.stats.total_ms),
+        frame.stats.pixel_fraction * 100.0
+    );
+    Ok(())
+}
+
+/// The scene of `a`, its warnings printed, with the command line's overrides (samples
+/// per pixel, seed, size, t0) applied.
+fn load_scene(a: &RenderArgs) -> anyhow::Result<crate::scene::Scene> {
     let (mut scene, import_warnings) = crate::import::load_path(&a.scene, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
     for w in &import_warnings {
@@ -209,23 +242,22 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     if let Some(t0) = a.t0 {
         scene.progressive.t0 = t0;
     }
-    let tracer = PathTracer::new(&scene);
-    let pixels = u64::from(scene.width) * u64::from(scene.height);
-    let opts = RenderOptions {
-        mode: a.mode,
-        max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
-        max_time: a.max_time,
-        noise_compensation: a.no_noise_compensation.then_some(false),
-    };
+    Ok(scene)
+}
+
+/// Renders `scene` with a progress bar on the terminal (the frame's line and ETA, or the
+/// pass's while a pass traces every pixel), keeping each frame in `iterations` if asked.
+fn render_with_progress(
+    scene: &crate::scene::Scene,
+    tracer: &PathTracer,
+    opts: &RenderOptions,
+    iterations: &mut Option<IterationFiles>,
+) -> anyhow::Result<progressive::Frame> {
     let bar = progress_bar();
     let start = Instant::now();
-    let mut tracker = EtaTracker::for_scene(&scene);
-    let mut iterations = a
-        .layers
-        .as_ref()
-        .map(|dir| IterationFiles::new(dir, scene.display.exposure));
+    let mut tracker = EtaTracker::for_scene(scene);
     let mut on_frame = |f: &progressive::Frame| {
-        if let Some(files) = &mut iterations {
+        if let Some(files) = iterations.as_mut() {
             files.keep(f);
         }
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
@@ -242,16 +274,26 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         bar.set_message(line);
     };
     let frame = progressive::render_reporting(
-        &scene,
-        &tracer,
-        &opts,
+        scene,
+        tracer,
+        opts,
         &mut on_frame,
         &on_pixels,
         &CancelToken::new(),
     )
     .map_err(|_| anyhow::anyhow!("render cancelled"))?;
     bar.finish_and_clear();
-    let bytes = format.encode(&frame.image, scene.display.exposure)?;
+    Ok(frame)
+}
+
+/// Writes the image in `format`, then the optional EXR, statistics and layers of `a`.
+fn write_outputs(
+    a: &RenderArgs,
+    format: OutputFormat,
+    frame: &progressive::Frame,
+    exposure: f32,
+) -> anyhow::Result<()> {
+    let bytes = format.encode(&frame.image, exposure)?;
     std::fs::write(&a.output, bytes)
         .with_context(|| format!("cannot write {}", a.output.display()))?;
     if let Some(p) = &a.exr {
@@ -263,20 +305,8 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(dir) = &a.layers {
-        write_layers(dir, &frame, scene.display.exposure)?;
+        write_layers(dir, frame, exposure)?;
     }
-    if let Some(e) = iterations.and_then(|f| f.error) {
-        return Err(e);
-    }
-    eprintln!(
-        "{}: {}x{} {} in {}, {:.1} % of pixels traced",
-        a.output.display(),
-        scene.width,
-        scene.height,
-        frame.stats.mode,
-        eta::seconds(frame.stats.total_ms),
-        frame.stats.pixel_fraction * 100.0
-    );
     Ok(())
 }
 

@@ -197,24 +197,34 @@ impl Adjacency {
     }
 }
 
+/// The triangulation as a graph: its vertices as [`Node`]s (in pixel order) and each
+/// one's Delaunay neighbours.
 fn graph(tris: &[Tri], samples: &Samples<'_>) -> (Vec<Node>, Adjacency) {
-    let Samples {
-        w,
-        radiance,
-        variance,
-        ids,
-        normals,
-        albedo,
-        ..
-    } = *samples;
-    let at = |p: crate::raster::PixelCoord| p.y as usize * w + p.x as usize;
-    // Vertices numbered in pixel order, and each one's neighbours in ascending order: a
-    // scan of the image and a bucket per vertex instead of sorting every edge (the sorts
-    // were a sixth of a render on a 451² corpus scene; the result is the same).
-    let mut node_of = vec![u32::MAX; radiance.len()];
+    let w = samples.w;
+    let (node_of, pixels) = number_vertices(tris, w, samples.radiance.len());
+    let (area, count) = vertex_areas(tris, w, &node_of, pixels.len());
+    let adjacency = Adjacency::build(tris, w, &node_of, &count);
+    let nodes = pixels
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| node(samples, i, 2.0 * area[k] / f64::from(count[k].max(1))))
+        .collect();
+    (nodes, adjacency)
+}
+
+/// Pixel index of `p` in an image `w` wide.
+fn pixel_at(p: crate::raster::PixelCoord, w: usize) -> usize {
+    p.y as usize * w + p.x as usize
+}
+
+/// The vertices of `tris` numbered in pixel order: per pixel of an image `w` wide with
+/// `len` pixels, its vertex number (`u32::MAX` for none), and per vertex its pixel. A scan
+/// of the image instead of a sort of the vertices: the result is the same.
+fn number_vertices(tris: &[Tri], w: usize, len: usize) -> (Vec<u32>, Vec<usize>) {
+    let mut node_of = vec![u32::MAX; len];
     for t in tris {
         for p in t.v {
-            node_of[at(p)] = 0;
+            node_of[pixel_at(p, w)] = 0;
         }
     }
     let mut pixels = Vec::new();
@@ -224,76 +234,94 @@ fn graph(tris: &[Tri], samples: &Samples<'_>) -> (Vec<Node>, Adjacency) {
             pixels.push(i);
         }
     }
-    let mut area = vec![0f64; pixels.len()];
-    let mut count = vec![0u32; pixels.len()];
+    (node_of, pixels)
+}
+
+/// Per vertex, the summed area of the triangles around it and how many there are.
+fn vertex_areas(tris: &[Tri], w: usize, node_of: &[u32], n: usize) -> (Vec<f64>, Vec<u32>) {
+    let mut area = vec![0f64; n];
+    let mut count = vec![0u32; n];
     for t in tris {
         let a = t.area2().abs() * 0.5;
         for p in t.v {
-            let u = node_of[at(p)] as usize;
+            let u = node_of[pixel_at(p, w)] as usize;
             area[u] += a;
             count[u] += 1;
         }
     }
-    // Each triangle gives each of its vertices two directed edges, to its other two.
-    let mut start = vec![0u32; pixels.len() + 1];
-    for (k, c) in count.iter().enumerate() {
-        start[k + 1] = start[k] + 2 * c;
-    }
-    let mut end = start.clone();
-    let mut list = vec![0u32; start[pixels.len()] as usize];
-    for t in tris {
-        let k = t.v.map(|p| node_of[at(p)]);
-        for j in 0..3 {
-            let u = k[j] as usize;
-            for v in [k[(j + 1) % 3], k[(j + 2) % 3]] {
-                list[end[u] as usize] = v;
-                end[u] += 1;
+    (area, count)
+}
+
+impl Adjacency {
+    /// Each vertex's neighbours in ascending order, from a bucket per vertex (`count[k]`
+    /// triangles around vertex k) instead of sorting every edge (the sorts were a sixth of
+    /// a render on a 451² corpus scene; the result is the same).
+    fn build(tris: &[Tri], w: usize, node_of: &[u32], count: &[u32]) -> Self {
+        let n = count.len();
+        // Each triangle gives each of its vertices two directed edges, to its other two.
+        let mut start = vec![0u32; n + 1];
+        for (k, c) in count.iter().enumerate() {
+            start[k + 1] = start[k] + 2 * c;
+        }
+        let mut end = start.clone();
+        let mut list = vec![0u32; start[n] as usize];
+        for t in tris {
+            let k = t.v.map(|p| node_of[pixel_at(p, w)]);
+            for j in 0..3 {
+                let u = k[j] as usize;
+                for v in [k[(j + 1) % 3], k[(j + 2) % 3]] {
+                    list[end[u] as usize] = v;
+                    end[u] += 1;
+                }
             }
         }
-    }
-    // Sort and deduplicate each vertex's bucket, compacting the list in place.
-    let mut kept = 0usize;
-    for k in 0..pixels.len() {
-        let bucket = &mut list[start[k] as usize..end[k] as usize];
-        bucket.sort_unstable();
-        let from = start[k] as usize;
-        start[k] = kept as u32;
-        let mut last = None;
-        for j in from..end[k] as usize {
-            let v = list[j];
-            if last != Some(v) {
-                list[kept] = v;
-                kept += 1;
-                last = Some(v);
+        // Sort and deduplicate each vertex's bucket, compacting the list in place.
+        let mut kept = 0usize;
+        for k in 0..n {
+            let bucket = &mut list[start[k] as usize..end[k] as usize];
+            bucket.sort_unstable();
+            let from = start[k] as usize;
+            start[k] = kept as u32;
+            let mut last = None;
+            for j in from..end[k] as usize {
+                let v = list[j];
+                if last != Some(v) {
+                    list[kept] = v;
+                    kept += 1;
+                    last = Some(v);
+                }
             }
         }
+        start[n] = kept as u32;
+        list.truncate(kept);
+        Self { start, list }
     }
-    start[pixels.len()] = kept as u32;
-    list.truncate(kept);
-    let nodes = pixels
-        .iter()
-        .enumerate()
-        .map(|(k, &i)| {
-            let own = albedo
-                .and_then(|a| a[i])
-                .filter(|a| a.min_element() >= MIN_ALBEDO);
-            let value = own.map_or(radiance[i], |a| radiance[i] / a);
-            Node {
-                pixel: i,
-                x: (i % w) as f64,
-                y: (i / w) as f64,
-                id: ids[i],
-                normal: normals.get(i).copied().unwrap_or(Vec3::ZERO),
-                value,
-                variance: own.map_or(variance[i], |a| variance[i] / (a * a)),
-                guide: Rgb::ZERO,
-                guide_variance: Rgb::ZERO,
-                albedo: own,
-                area: 2.0 * area[k] / f64::from(count[k].max(1)),
-            }
-        })
-        .collect();
-    (nodes, Adjacency { start, list })
+}
+
+/// The vertex at pixel `i`, whose triangles have mean area `area`. A textured surface's
+/// estimate is divided by its albedo (where that is not too dark to divide by), so the
+/// fit smooths the lighting, not the texture.
+fn node(samples: &Samples<'_>, i: usize, area: f64) -> Node {
+    let w = samples.w;
+    let (radiance, variance) = (samples.radiance, samples.variance);
+    let own = samples
+        .albedo
+        .and_then(|a| a[i])
+        .filter(|a| a.min_element() >= MIN_ALBEDO);
+    let value = own.map_or(radiance[i], |a| radiance[i] / a);
+    Node {
+        pixel: i,
+        x: (i % w) as f64,
+        y: (i / w) as f64,
+        id: samples.ids[i],
+        normal: samples.normals.get(i).copied().unwrap_or(Vec3::ZERO),
+        value,
+        variance: own.map_or(variance[i], |a| variance[i] / (a * a)),
+        guide: Rgb::ZERO,
+        guide_variance: Rgb::ZERO,
+        albedo: own,
+        area,
+    }
 }
 
 /// The range weight's guide: each vertex's luminance averaged with its same-object

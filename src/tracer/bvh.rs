@@ -97,117 +97,26 @@ impl Geometry {
     /// near-duplicate triangles) is built on a thread of its own that is abandoned on a
     /// cancel ([`crate::cancel::abandonable`]).
     pub fn prepare(scene: &Scene, cancel: &CancelToken) -> Result<Self, Cancelled> {
-        let mut prims = Vec::new();
-        let mut info: Vec<PrimInfo> = Vec::new();
-        let mut normals = Vec::new();
-        let mut uvs = Vec::new();
+        let mut c = Collected::default();
         for (obj, shape) in scene.shapes.iter().enumerate() {
-            let object = obj as ObjectId;
-            let needs_uv = scene
-                .materials
-                .get(shape.material() as usize)
-                .is_some_and(crate::scene::Material::uses_uv);
-            match shape {
-                Shape::Sphere {
-                    center,
-                    radius,
-                    material,
-                } => {
-                    prims.push(Prim::Sphere {
-                        center: (*center).into(),
-                        radius: *radius,
-                    });
-                    info.push(PrimInfo {
-                        object,
-                        material: *material,
-                        emitter: NONE,
-                        normals: NONE,
-                        uvs: if needs_uv { 0 } else { NONE },
-                    });
-                }
-                Shape::Triangles {
-                    triangles,
-                    material,
-                } => {
-                    for (k, t) in triangles.iter().enumerate() {
-                        if k % CHECK_EVERY == 0 {
-                            cancel.check()?;
-                        }
-                        let e1 = t.p[1] - t.p[0];
-                        let e2 = t.p[2] - t.p[0];
-                        // Validation drops degenerate triangles; this guards any that slip
-                        // through (a zero normal would poison shading with NaN).
-                        if !e1.cross(e2).is_finite() || e1.cross(e2).length_squared() == 0.0 {
-                            continue;
-                        }
-                        let nidx = match t.n {
-                            Some(n)
-                                if n.iter().all(|v| v.is_finite() && v.length_squared() > 0.0) =>
-                            {
-                                let i = normals.len() as u32;
-                                normals.extend(n.iter().map(|v| v.normalize()));
-                                i
-                            }
-                            _ => NONE,
-                        };
-                        let uidx = if needs_uv {
-                            let i = uvs.len() as u32;
-                            // pbrt's parametrisation of a triangle without its own: (0, 0),
-                            // (1, 0), (1, 1) at its corners.
-                            uvs.extend(t.uv.unwrap_or([Vec2::ZERO, Vec2::X, Vec2::ONE]));
-                            i
-                        } else {
-                            NONE
-                        };
-                        prims.push(Prim::Tri {
-                            v0: t.p[0].into(),
-                            e1: e1.into(),
-                            e2: e2.into(),
-                        });
-                        info.push(PrimInfo {
-                            object,
-                            material: *material,
-                            emitter: NONE,
-                            normals: nidx,
-                            uvs: uidx,
-                        });
-                    }
-                }
-            }
+            c.push_shape(scene, obj as ObjectId, shape, cancel)?;
         }
         cancel.check()?;
-        let (mut prims, mut info) = without_duplicates(prims, info, cancel)?;
+        let Collected {
+            prims,
+            info,
+            normals,
+            uvs,
+        } = c;
+        let (prims, info) = without_duplicates(prims, info, cancel)?;
         cancel.check()?;
         let aabbs: Vec<Aabb> = prims
             .iter()
             .enumerate()
             .map(|(i, p)| tie_broken(prim_aabb(p), i))
             .collect();
-        let mut total = Aabb::empty();
-        for a in &aabbs {
-            total = total.union(a);
-        }
-        let (bounds_center, bounds_radius) = if aabbs.is_empty() {
-            (Vec3::ZERO, 1.0)
-        } else {
-            let c: Vec3 = total.center().into();
-            (c, (Vec3::from(total.diagonal()).length() * 0.5).max(1e-6))
-        };
-        let bvh = if prims.is_empty() {
-            None
-        } else {
-            let bvh = if aabbs.len() < BUILD_ON_ITS_OWN_THREAD {
-                build_cwbvh(&aabbs)
-            } else {
-                crate::cancel::abandonable(cancel, move || build_cwbvh(&aabbs))?
-            };
-            cancel.check()?;
-            // Reorder primitives to the BVH's leaf order (obvhs examples/cornell_box_cwbvh.rs).
-            let order = &bvh.primitive_indices;
-            prims = order.iter().map(|&i| prims[i as usize]).collect();
-            info = order.iter().map(|&i| info[i as usize]).collect();
-            Some(bvh)
-        };
+        let (bounds_center, bounds_radius) = bounding_sphere(&aabbs);
+        let (bvh, prims, info) = in_leaf_order(aabbs, prims, info, cancel)?;
         Ok(Self {
             bvh,
             prims,
@@ -373,6 +282,155 @@ fn prim_aabb(p: &Prim) -> Aabb {
             Aabb::new(center - Vec3A::splat(radius), center + Vec3A::splat(radius))
         }
     }
+}
+
+/// The primitives of a scene in scene order, before duplicates are dropped and the BVH
+/// reorders them ([`Geometry::prepare`]).
+#[derive(Default)]
+struct Collected {
+    prims: Vec<Prim>,
+    info: Vec<PrimInfo>,
+    normals: Vec<Vec3>,
+    uvs: Vec<Vec2>,
+}
+
+impl Collected {
+    /// Appends the primitives of `shape` (object `object`), polling `cancel` every
+    /// [`CHECK_EVERY`] triangles.
+    fn push_shape(
+        &mut self,
+        scene: &Scene,
+        object: ObjectId,
+        shape: &Shape,
+        cancel: &CancelToken,
+    ) -> Result<(), Cancelled> {
+        let needs_uv = scene
+            .materials
+            .get(shape.material() as usize)
+            .is_some_and(crate::scene::Material::uses_uv);
+        match shape {
+            Shape::Sphere {
+                center,
+                radius,
+                material,
+            } => {
+                self.prims.push(Prim::Sphere {
+                    center: (*center).into(),
+                    radius: *radius,
+                });
+                self.info.push(PrimInfo {
+                    object,
+                    material: *material,
+                    emitter: NONE,
+                    normals: NONE,
+                    uvs: if needs_uv { 0 } else { NONE },
+                });
+            }
+            Shape::Triangles {
+                triangles,
+                material,
+            } => {
+                for (k, t) in triangles.iter().enumerate() {
+                    if k % CHECK_EVERY == 0 {
+                        cancel.check()?;
+                    }
+                    self.push_triangle(t, object, *material, needs_uv);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Appends one triangle with its shading normals and texture coordinates (those only
+    /// when `needs_uv`), unless it is degenerate.
+    fn push_triangle(
+        &mut self,
+        t: &crate::scene::Triangle,
+        object: ObjectId,
+        material: MaterialId,
+        needs_uv: bool,
+    ) {
+        let e1 = t.p[1] - t.p[0];
+        let e2 = t.p[2] - t.p[0];
+        // Validation drops degenerate triangles; this guards any that slip
+        // through (a zero normal would poison shading with NaN).
+        if !e1.cross(e2).is_finite() || e1.cross(e2).length_squared() == 0.0 {
+            return;
+        }
+        let nidx = match t.n {
+            Some(n) if n.iter().all(|v| v.is_finite() && v.length_squared() > 0.0) => {
+                let i = self.normals.len() as u32;
+                self.normals.extend(n.iter().map(|v| v.normalize()));
+                i
+            }
+            _ => NONE,
+        };
+        let uidx = if needs_uv {
+            let i = self.uvs.len() as u32;
+            // pbrt's parametrisation of a triangle without its own: (0, 0),
+            // (1, 0), (1, 1) at its corners.
+            self.uvs
+                .extend(t.uv.unwrap_or([Vec2::ZERO, Vec2::X, Vec2::ONE]));
+            i
+        } else {
+            NONE
+        };
+        self.prims.push(Prim::Tri {
+            v0: t.p[0].into(),
+            e1: e1.into(),
+            e2: e2.into(),
+        });
+        self.info.push(PrimInfo {
+            object,
+            material,
+            emitter: NONE,
+            normals: nidx,
+            uvs: uidx,
+        });
+    }
+}
+
+/// Bounding sphere (centre, radius) of the boxes `aabbs`: the unit sphere at the origin
+/// for an empty scene; never a zero radius.
+fn bounding_sphere(aabbs: &[Aabb]) -> (Vec3, f32) {
+    let mut total = Aabb::empty();
+    for a in aabbs {
+        total = total.union(a);
+    }
+    if aabbs.is_empty() {
+        (Vec3::ZERO, 1.0)
+    } else {
+        let c: Vec3 = total.center().into();
+        (c, (Vec3::from(total.diagonal()).length() * 0.5).max(1e-6))
+    }
+}
+
+/// The BVH (none for an empty scene) and the primitives with their info in its leaf order.
+type LeafOrdered = (Option<CwBvh>, Vec<Prim>, Vec<PrimInfo>);
+
+/// Builds the BVH over `aabbs` (on a thread of its own for a large scene, abandoned on a
+/// cancel) and reorders `prims` and `info` to its leaf order, so that the index the
+/// traversal hands back addresses them directly. No BVH for an empty scene.
+fn in_leaf_order(
+    aabbs: Vec<Aabb>,
+    prims: Vec<Prim>,
+    info: Vec<PrimInfo>,
+    cancel: &CancelToken,
+) -> Result<LeafOrdered, Cancelled> {
+    if prims.is_empty() {
+        return Ok((None, prims, info));
+    }
+    let bvh = if aabbs.len() < BUILD_ON_ITS_OWN_THREAD {
+        build_cwbvh(&aabbs)
+    } else {
+        crate::cancel::abandonable(cancel, move || build_cwbvh(&aabbs))?
+    };
+    cancel.check()?;
+    // Reorder primitives to the BVH's leaf order (obvhs examples/cornell_box_cwbvh.rs).
+    let order = &bvh.primitive_indices;
+    let prims = order.iter().map(|&i| prims[i as usize]).collect();
+    let info = order.iter().map(|&i| info[i as usize]).collect();
+    Ok((Some(bvh), prims, info))
 }
 
 /// Drops every triangle that repeats an earlier one of the same object exactly (same

@@ -7,7 +7,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::bvh::NONE;
-use super::material::Bsdf;
+use super::material::{Bsdf, BsdfSample};
 use super::rng::Rng;
 use super::sampling::{offset_ray_origin, power_heuristic, Frame};
 use super::PathTracer;
@@ -59,18 +59,20 @@ impl PathTracer {
         let mut o = self.camera.origin;
         let mut throughput = Vec3::ONE;
         let mut l = Vec3::ZERO;
-        // Pdf of the BSDF sample that produced `dir`, and whether it was a delta lobe
-        // (the camera ray counts as one: emitters it sees get full weight).
-        let mut prev_pdf = 0.0f32;
-        let mut prev_delta = true;
-        let mut prev_p = o;
+        // The camera ray counts as a delta lobe: emitters it sees get full weight.
+        let mut prev = Prev {
+            pdf: 0.0,
+            delta: true,
+            p: o,
+        };
         let mut skip = NONE;
         let max_bounces = self.max_bounces;
         let lights = &self.lights;
         let mut depth = 0u32;
         loop {
             *rays += 1;
-            // The camera ray goes through the screen-tile lists (primary.rs), same hit.
+            // The next vertex (the camera ray goes through the screen-tile lists,
+            // primary.rs: same hit as the BVH's).
             let hit = if depth == 0 {
                 self.camera_hit(x, y, dir)
             } else {
@@ -78,28 +80,15 @@ impl PathTracer {
             };
             let Some(hit) = hit else {
                 if let Some(env) = lights.env_radiance {
-                    let w = if prev_delta || lights.env_pmf == 0.0 {
-                        1.0
-                    } else {
-                        power_heuristic(prev_pdf, lights.env_pmf / (4.0 * PI))
-                    };
-                    l += throughput * env * w;
+                    l += throughput * env * self.env_weight(&prev);
                 }
                 break;
             };
             let s = self.geo.surface(o, dir, &hit);
+            // Emission seen there, MIS-weighted against the previous vertex's light sample.
             if s.info.emitter != NONE {
-                let le = lights.emitted(s.info.emitter, dir, s.ng);
-                if le != Vec3::ZERO {
-                    let w = if prev_delta {
-                        1.0
-                    } else {
-                        power_heuristic(
-                            prev_pdf,
-                            lights.pdf(s.info.emitter, prev_p, s.p, s.ng, dir),
-                        )
-                    };
-                    l += throughput * le * w;
+                if let Some(c) = self.emission(&s, dir, &prev, throughput) {
+                    l += c;
                 }
             }
             if depth >= max_bounces {
@@ -107,97 +96,132 @@ impl PathTracer {
             }
             let bsdf = self.bsdf_at(&s);
             if ALBEDO && depth == 0 {
-                if let (Some(super::ResolvedMaterial::Textured(_)), Bsdf::Diffuse { albedo: a }) =
-                    (self.materials.get(s.info.material as usize), bsdf)
-                {
-                    *albedo = Some(a);
-                }
+                *albedo = self.texture_albedo_of(&s, bsdf);
             }
             if matches!(bsdf, Bsdf::Black) {
                 break;
             }
-            let wo_world = -dir;
-            // Diffuse and glossy surfaces are two-sided: shade with the normals flipped
-            // toward the incoming ray (Tungsten's enable_two_sided_shading). Dielectrics
-            // keep the geometric orientation: it says which side is inside.
-            let two_sided = !matches!(bsdf, Bsdf::Dielectric { .. });
-            let (ng, ns) = if two_sided && wo_world.dot(s.ng) < 0.0 {
-                (-s.ng, -s.ns)
-            } else {
-                (s.ng, s.ns)
-            };
-            let frame = Frame::new(ns);
-            let wo = frame.to_local(wo_world);
-
-            // Next-event estimation (only for non-delta lobes: a delta lobe cannot meet a
-            // sampled light direction).
+            let at = Shading::new(&s, &bsdf, dir, hit.prim);
+            // Next-event estimation, then continue the path by sampling the BSDF.
             if self.features.has_lights && !bsdf.is_delta() {
-                let u_sel = rng.next_f32();
-                let u_l = rng.next_2d();
-                if let Some(ls) = lights.sample(s.p, u_sel, u_l) {
-                    if ls.wi.dot(ng) > 0.0 {
-                        let (fc, bsdf_pdf) = bsdf.eval(wo, frame.to_local(ls.wi));
-                        if fc != Vec3::ZERO {
-                            let origin = offset_ray_origin(s.p, ng);
-                            // Aim from the offset origin at the sampled point itself: the
-                            // offset (256 ulps, 2 units at 1e5) moves the origin sideways, and a
-                            // ray parallel to `wi` would meet the light's plane before `tmax`.
-                            let (shadow_dir, tmax) = if ls.dist.is_finite() {
-                                let v = s.p + ls.wi * ls.dist - origin;
-                                let len = v.length();
-                                (v / len, len * SHADOW_SHRINK)
-                            } else {
-                                (ls.wi, f32::INFINITY)
-                            };
-                            *rays += u32::from(shadow_dir.is_finite());
-                            if shadow_dir.is_finite()
-                                && !self.geo.occluded(origin, shadow_dir, tmax, hit.prim)
-                            {
-                                let w = if ls.delta {
-                                    1.0
-                                } else {
-                                    power_heuristic(ls.pdf, bsdf_pdf)
-                                };
-                                l += throughput * fc * ls.weight * w;
-                            }
-                        }
-                    }
+                if let Some(c) = self.next_event(&at, &bsdf, throughput, rng, rays) {
+                    l += c;
                 }
             }
-
-            // Continue the path by sampling the BSDF.
-            let u = rng.next_2d();
-            let uc = rng.next_f32();
-            let Some(bs) = bsdf.sample(wo, u, uc) else {
+            let Some((bs, wi, side)) = scatter(&at, &bsdf, rng) else {
                 break;
             };
-            let wi = frame.to_world(bs.wi).normalize();
-            let side = wi.dot(s.ng);
-            if two_sided && wi.dot(ng) <= 0.0 {
-                // A shading normal can send a reflected ray below the geometric surface;
-                // such a ray would leak light through it.
-                break;
-            }
-            if side == 0.0 {
-                break;
-            }
             throughput *= bs.weight;
-            prev_pdf = bs.pdf;
-            prev_delta = bs.delta;
-            prev_p = s.p;
+            prev = Prev {
+                pdf: bs.pdf,
+                delta: bs.delta,
+                p: s.p,
+            };
             skip = hit.prim;
             o = offset_ray_origin(s.p, if side > 0.0 { s.ng } else { -s.ng });
             dir = wi;
             depth += 1;
-            if depth >= RR_START {
-                let q = throughput.max_element().min(0.95);
-                if !(q > 0.0) || rng.next_f32() >= q {
-                    break;
-                }
-                throughput /= q;
+            if depth >= RR_START && !russian_roulette(&mut throughput, rng) {
+                break;
             }
         }
         l
+    }
+
+    /// The MIS weight of the environment seen by a path that escaped after a BSDF sample of
+    /// pdf `prev_pdf` (full weight after a delta lobe or the camera ray, or when next-event
+    /// estimation never samples the environment): Veach 1997 §9.2, power heuristic.
+    #[inline(always)]
+    fn env_weight(&self, prev: &Prev) -> f32 {
+        if prev.delta || self.lights.env_pmf == 0.0 {
+            1.0
+        } else {
+            power_heuristic(prev.pdf, self.lights.env_pmf / (4.0 * PI))
+        }
+    }
+
+    /// Radiance of the emitter hit at `s` by a path travelling along `dir`, MIS-weighted
+    /// against the next-event estimate of the previous vertex (Veach 1997 §9.2) and
+    /// multiplied by `throughput`; `None` where it emits nothing toward the path.
+    #[inline(always)]
+    fn emission(
+        &self,
+        s: &super::bvh::Surface,
+        dir: Vec3,
+        prev: &Prev,
+        throughput: Vec3,
+    ) -> Option<Vec3> {
+        let le = self.lights.emitted(s.info.emitter, dir, s.ng);
+        if le == Vec3::ZERO {
+            return None;
+        }
+        let w = if prev.delta {
+            1.0
+        } else {
+            power_heuristic(
+                prev.pdf,
+                self.lights.pdf(s.info.emitter, prev.p, s.p, s.ng, dir),
+            )
+        };
+        Some(throughput * le * w)
+    }
+
+    /// The texture albedo of a camera-ray hit for [`PathTracer::trace_path_albedo`]: only a
+    /// textured Lambertian surface has one.
+    #[inline(always)]
+    fn texture_albedo_of(&self, s: &super::bvh::Surface, bsdf: Bsdf) -> Option<Vec3> {
+        match (self.materials.get(s.info.material as usize), bsdf) {
+            (Some(super::ResolvedMaterial::Textured(_)), Bsdf::Diffuse { albedo: a }) => Some(a),
+            _ => None,
+        }
+    }
+
+    /// Next-event estimation at a non-delta vertex (a delta lobe cannot meet a sampled
+    /// light direction): one light sample, its shadow ray, weighted against BSDF sampling
+    /// by the power heuristic (Veach 1997 §9.2). Returns the radiance it adds, already
+    /// multiplied by `throughput` (in the order the estimator has always used, so sums
+    /// stay bit-identical), or `None` when it adds nothing; counts its shadow ray in
+    /// `rays`.
+    #[inline(always)]
+    fn next_event(
+        &self,
+        at: &Shading,
+        bsdf: &Bsdf,
+        throughput: Vec3,
+        rng: &mut Rng,
+        rays: &mut u32,
+    ) -> Option<Vec3> {
+        let u_sel = rng.next_f32();
+        let u_l = rng.next_2d();
+        let ls = self.lights.sample(at.p, u_sel, u_l)?;
+        if !(ls.wi.dot(at.ng) > 0.0) {
+            return None;
+        }
+        let (fc, bsdf_pdf) = bsdf.eval(at.wo, at.frame.to_local(ls.wi));
+        if fc == Vec3::ZERO {
+            return None;
+        }
+        let origin = offset_ray_origin(at.p, at.ng);
+        // Aim from the offset origin at the sampled point itself: the offset (256 ulps, 2
+        // units at 1e5) moves the origin sideways, and a ray parallel to `wi` would meet
+        // the light's plane before `tmax`.
+        let (shadow_dir, tmax) = if ls.dist.is_finite() {
+            let v = at.p + ls.wi * ls.dist - origin;
+            let len = v.length();
+            (v / len, len * SHADOW_SHRINK)
+        } else {
+            (ls.wi, f32::INFINITY)
+        };
+        *rays += u32::from(shadow_dir.is_finite());
+        if !shadow_dir.is_finite() || self.geo.occluded(origin, shadow_dir, tmax, at.prim) {
+            return None;
+        }
+        let w = if ls.delta {
+            1.0
+        } else {
+            power_heuristic(ls.pdf, bsdf_pdf)
+        };
+        Some(throughput * fc * ls.weight * w)
     }
 
     /// The BSDF of the surface at a hit (textures looked up at its position and
@@ -231,4 +255,88 @@ impl PathTracer {
             None => Bsdf::Black,
         }
     }
+}
+
+/// The BSDF sample that led to the current vertex: its pdf, whether it was a delta lobe,
+/// and the vertex it left (what MIS needs to weigh an emitter the path hits).
+struct Prev {
+    pdf: f32,
+    delta: bool,
+    p: Vec3,
+}
+
+/// A path vertex as shading sees it: position, geometric normal and shading frame (both
+/// flipped toward the incoming ray on two-sided surfaces), outgoing direction in that
+/// frame, and the primitive the next rays leave.
+struct Shading {
+    p: Vec3,
+    /// The geometric normal as the primitive defines it (not flipped).
+    ng_prim: Vec3,
+    ng: Vec3,
+    /// Whether the surface is shaded from either side ([`Shading::new`]).
+    two_sided: bool,
+    frame: Frame,
+    wo: Vec3,
+    prim: u32,
+}
+
+impl Shading {
+    /// The vertex at `s` (primitive `prim`) reached along `dir`. Diffuse and glossy
+    /// surfaces are two-sided: shade with the normals flipped toward the incoming ray
+    /// (Tungsten's enable_two_sided_shading). Dielectrics keep the geometric orientation:
+    /// it says which side is inside.
+    #[inline(always)]
+    fn new(s: &super::bvh::Surface, bsdf: &Bsdf, dir: Vec3, prim: u32) -> Self {
+        let wo_world = -dir;
+        let two_sided = !matches!(bsdf, Bsdf::Dielectric { .. });
+        let (ng, ns) = if two_sided && wo_world.dot(s.ng) < 0.0 {
+            (-s.ng, -s.ns)
+        } else {
+            (s.ng, s.ns)
+        };
+        let frame = Frame::new(ns);
+        Self {
+            p: s.p,
+            ng_prim: s.ng,
+            ng,
+            two_sided,
+            frame,
+            wo: frame.to_local(wo_world),
+            prim,
+        }
+    }
+}
+
+/// Samples the BSDF at `at` for the path's next direction: the sample, its world
+/// direction and that direction's side of the primitive's surface (its dot with the
+/// unflipped geometric normal). `None` ends the path: no sample, or a direction along the
+/// surface, or one below the flipped geometric surface of a two-sided shading normal
+/// (such a reflected ray would leak light through it).
+#[inline(always)]
+fn scatter(at: &Shading, bsdf: &Bsdf, rng: &mut Rng) -> Option<(BsdfSample, Vec3, f32)> {
+    let u = rng.next_2d();
+    let uc = rng.next_f32();
+    let bs = bsdf.sample(at.wo, u, uc)?;
+    let wi = at.frame.to_world(bs.wi).normalize();
+    let side = wi.dot(at.ng_prim);
+    if at.two_sided && wi.dot(at.ng) <= 0.0 {
+        return None;
+    }
+    if side == 0.0 {
+        return None;
+    }
+    Some((bs, wi, side))
+}
+
+/// Russian roulette (pbrt-v4 §14.1.4): the path survives with probability
+/// q = min(max throughput component, 0.95) and its throughput is divided by q. Returns
+/// whether it survives; a NaN or zero throughput ends it.
+#[inline(always)]
+fn russian_roulette(throughput: &mut Vec3, rng: &mut Rng) -> bool {
+    let q = throughput.max_element().min(0.95);
+    if !(q > 0.0) || rng.next_f32() >= q {
+        return false;
+    }
+    *throughput /= q;
+    true
 }

@@ -86,6 +86,7 @@ impl Lights {
     #[must_use]
     pub fn build(scene: &Scene, geo: &mut Geometry) -> Self {
         let mut emitters = Vec::new();
+        // pbrt-v4 `PowerLightSampler`: each light's power Φ, estimated once here.
         let mut power: Vec<f64> = Vec::new();
         let r_scene = f64::from(geo.bounds_radius);
         for (i, prim) in geo.prims.iter().enumerate() {
@@ -102,108 +103,28 @@ impl Lights {
                 continue;
             }
             let sides = if two_sided { 2.0 } else { 1.0 };
-            let (e, area) = match *prim {
-                Prim::Tri { v0, e1, e2 } => {
-                    let c = Vec3::from(e1).cross(Vec3::from(e2));
-                    let area = 0.5 * c.length();
-                    (
-                        Emitter::Tri {
-                            prim: i as u32,
-                            v0: v0.into(),
-                            e1: e1.into(),
-                            e2: e2.into(),
-                            n: c.normalize(),
-                            area,
-                            radiance,
-                            two_sided,
-                        },
-                        f64::from(area),
-                    )
-                }
-                Prim::Sphere { center, radius } => (
-                    Emitter::Sphere {
-                        prim: i as u32,
-                        center: center.into(),
-                        radius,
-                        radiance,
-                        two_sided,
-                    },
-                    4.0 * std::f64::consts::PI * f64::from(radius) * f64::from(radius),
-                ),
-            };
+            let (e, area) = area_emitter(prim, i as u32, radiance, two_sided);
             info.emitter = emitters.len() as u32;
             emitters.push(e);
+            // Φ = sides · π · A · L for a diffuse emitter.
             power.push(sides * std::f64::consts::PI * area * avg);
         }
         let mut env = Vec3::ZERO;
         let mut has_env = false;
         for l in &scene.lights {
-            match *l {
-                Light::Point {
-                    position,
-                    intensity,
-                } => {
-                    let p = 4.0 * std::f64::consts::PI * f64::from(average(intensity));
-                    if p > 0.0 && intensity.is_finite() {
-                        emitters.push(Emitter::Point {
-                            position,
-                            intensity,
-                        });
-                        power.push(p);
-                    }
-                }
-                Light::Directional {
-                    direction,
-                    irradiance,
-                } => {
-                    let p =
-                        std::f64::consts::PI * r_scene * r_scene * f64::from(average(irradiance));
-                    let d = direction.normalize_or_zero();
-                    if p > 0.0 && irradiance.is_finite() && d != Vec3::ZERO {
-                        emitters.push(Emitter::Directional {
-                            direction: d,
-                            irradiance,
-                        });
-                        power.push(p);
-                    }
-                }
-                Light::Environment { radiance } => {
-                    env += radiance;
-                    has_env = true;
-                }
-                Light::Spot {
-                    position,
-                    direction,
-                    intensity,
-                    cos_inner,
-                    cos_outer,
-                    falloff,
-                } => {
-                    // pbrt-v4 SpotLight::Phi: the full cone, and half the falloff band
-                    // (exact for a linear ramp in cos θ, close for the others).
-                    let solid = 2.0
-                        * std::f64::consts::PI
-                        * ((1.0 - f64::from(cos_inner))
-                            + 0.5 * f64::from(cos_inner - cos_outer).max(0.0));
-                    let p = solid * f64::from(average(intensity));
-                    if p > 0.0 && intensity.is_finite() && direction != Vec3::ZERO {
-                        emitters.push(Emitter::Spot {
-                            position,
-                            direction,
-                            intensity,
-                            cos_inner,
-                            cos_outer,
-                            falloff,
-                        });
-                        power.push(p);
-                    }
-                }
+            if let Light::Environment { radiance } = *l {
+                env += radiance;
+                has_env = true;
+            } else if let Some((e, p)) = local_light(l, r_scene) {
+                emitters.push(e);
+                power.push(p);
             }
         }
         let mut env_pmf_index = None;
         if has_env && average(env) > 0.0 && env.is_finite() {
             env_pmf_index = Some(emitters.len());
             emitters.push(Emitter::Environment { radiance: env });
+            // Φ = π² r² L: the environment's radiance through the scene's bounding disc.
             power.push(
                 std::f64::consts::PI
                     * std::f64::consts::PI
@@ -212,22 +133,7 @@ impl Lights {
                     * f64::from(average(env)),
             );
         }
-        let total: f64 = power.iter().sum();
-        let pmf: Vec<f32> = if total > 0.0 && total.is_finite() {
-            power.iter().map(|p| (p / total) as f32).collect()
-        } else {
-            // Overflowing power estimates (radiance near f32::MAX): fall back to uniform.
-            vec![1.0 / power.len().max(1) as f32; power.len()]
-        };
-        let mut cdf = Vec::with_capacity(pmf.len());
-        let mut acc = 0.0f64;
-        for p in &pmf {
-            acc += f64::from(*p);
-            cdf.push(acc as f32);
-        }
-        if let Some(last) = cdf.last_mut() {
-            *last = 1.0;
-        }
+        let (pmf, cdf) = selection(&power);
         let env_pmf = env_pmf_index.map_or(0.0, |i| pmf[i]);
         Self {
             emitters,
@@ -270,9 +176,8 @@ impl Lights {
                 two_sided,
             } => {
                 let (b1, b2) = uniform_triangle(u);
-                let q = v0 + e1 * b1 + e2 * b2;
                 let emitter = AreaPoint {
-                    q,
+                    q: v0 + e1 * b1 + e2 * b2,
                     n,
                     area,
                     radiance,
@@ -289,30 +194,11 @@ impl Lights {
                 two_sided,
             } => {
                 let to_c = center - p;
-                let d2 = to_c.length_squared();
                 let r2 = radius * radius;
-                if d2 > r2 * 1.000_01 {
-                    // Outside: sample the cone of directions that see the sphere.
-                    let dc = d2.sqrt();
-                    let sin2 = r2 / d2;
-                    let cos_max = (1.0 - sin2).max(0.0).sqrt();
-                    let frame = Frame::new(to_c / dc);
-                    let wi = frame.to_world(uniform_cone(u, cos_max));
-                    // Near root of the ray against the sphere; tangent if rounding misses.
-                    let b = wi.dot(to_c);
-                    let disc = (r2 - (d2 - b * b)).max(0.0);
-                    let dist = (b - disc.sqrt()).max(0.0);
-                    let pdf = sel / (2.0 * PI * (1.0 - cos_max).max(1e-12));
-                    // From outside the visible cap faces the point (outward side emits).
-                    let _ = two_sided;
-                    Some(LightSample {
-                        wi,
-                        dist,
-                        weight: radiance / pdf,
-                        pdf,
-                        delta: false,
-                        prim,
-                    })
+                if to_c.length_squared() > r2 * 1.000_01 {
+                    // From outside the visible cap faces the point (outward side emits),
+                    // so `two_sided` does not matter.
+                    Some(sphere_cone(to_c, r2, radiance, prim, sel, u))
                 } else {
                     // Inside (or on): uniform area sampling.
                     let nq = uniform_sphere(u);
@@ -327,66 +213,8 @@ impl Lights {
                     emitter.sample_from(p, sel)
                 }
             }
-            Emitter::Point {
-                position,
-                intensity,
-            } => {
-                let (wi, dist) = dir_dist(p, position)?;
-                let w = intensity / (sel * dist * dist);
-                Some(LightSample {
-                    wi,
-                    dist,
-                    weight: w,
-                    pdf: 0.0,
-                    delta: true,
-                    prim: NONE,
-                })
-            }
-            Emitter::Spot {
-                position,
-                direction,
-                intensity,
-                cos_inner,
-                cos_outer,
-                falloff,
-            } => {
-                let (wi, dist) = dir_dist(p, position)?;
-                let f = falloff.weight(direction.dot(-wi), cos_inner, cos_outer);
-                if f <= 0.0 {
-                    return None;
-                }
-                Some(LightSample {
-                    wi,
-                    dist,
-                    weight: intensity * (f / (sel * dist * dist)),
-                    pdf: 0.0,
-                    delta: true,
-                    prim: NONE,
-                })
-            }
-            Emitter::Directional {
-                direction,
-                irradiance,
-            } => Some(LightSample {
-                wi: -direction,
-                dist: f32::INFINITY,
-                weight: irradiance / sel,
-                pdf: 0.0,
-                delta: true,
-                prim: NONE,
-            }),
-            Emitter::Environment { radiance } => {
-                let wi = uniform_sphere(u);
-                let pdf = sel / (4.0 * PI);
-                Some(LightSample {
-                    wi,
-                    dist: f32::INFINITY,
-                    weight: radiance / pdf,
-                    pdf,
-                    delta: false,
-                    prim: NONE,
-                })
-            }
+            // Point, spot, directional and environment lights: no surface.
+            e => sample_surfaceless(&e, p, sel, u),
         }
     }
 
@@ -449,6 +277,216 @@ impl Lights {
             _ => 0.0,
         }
     }
+}
+
+/// A light without a surface (point, spot, directional, environment) sampled from `p`,
+/// selected with probability `sel`; `u` draws the environment's direction. Emissive
+/// triangles and spheres are [`Lights::sample`]'s own arms.
+#[inline(always)]
+fn sample_surfaceless(e: &Emitter, p: Vec3, sel: f32, u: Vec2) -> Option<LightSample> {
+    match *e {
+        Emitter::Point {
+            position,
+            intensity,
+        } => {
+            let (wi, dist) = dir_dist(p, position)?;
+            Some(LightSample::delta(
+                wi,
+                dist,
+                intensity / (sel * dist * dist),
+            ))
+        }
+        Emitter::Spot {
+            position,
+            direction,
+            intensity,
+            cos_inner,
+            cos_outer,
+            falloff,
+        } => {
+            let (wi, dist) = dir_dist(p, position)?;
+            let f = falloff.weight(direction.dot(-wi), cos_inner, cos_outer);
+            if f <= 0.0 {
+                return None;
+            }
+            let w = intensity * (f / (sel * dist * dist));
+            Some(LightSample::delta(wi, dist, w))
+        }
+        Emitter::Directional {
+            direction,
+            irradiance,
+        } => Some(LightSample::delta(
+            -direction,
+            f32::INFINITY,
+            irradiance / sel,
+        )),
+        Emitter::Environment { radiance } => {
+            let wi = uniform_sphere(u);
+            let pdf = sel / (4.0 * PI);
+            Some(LightSample {
+                wi,
+                dist: f32::INFINITY,
+                weight: radiance / pdf,
+                pdf,
+                delta: false,
+                prim: NONE,
+            })
+        }
+        Emitter::Tri { .. } | Emitter::Sphere { .. } => None,
+    }
+}
+
+impl LightSample {
+    /// A sample of a delta light (point, spot, directional): no pdf, no primitive.
+    #[inline(always)]
+    fn delta(wi: Vec3, dist: f32, weight: Vec3) -> Self {
+        Self {
+            wi,
+            dist,
+            weight,
+            pdf: 0.0,
+            delta: true,
+            prim: NONE,
+        }
+    }
+}
+
+/// A sphere of squared radius `r2` seen from outside at offset `to_c` (centre minus
+/// shading point): a direction drawn uniformly in the cone that sees it (pbrt-v4
+/// `Sphere::Sample` with a reference point), the distance to its near side.
+#[inline(always)]
+fn sphere_cone(to_c: Vec3, r2: f32, radiance: Vec3, prim: u32, sel: f32, u: Vec2) -> LightSample {
+    let d2 = to_c.length_squared();
+    let dc = d2.sqrt();
+    let sin2 = r2 / d2;
+    let cos_max = (1.0 - sin2).max(0.0).sqrt();
+    let frame = Frame::new(to_c / dc);
+    let wi = frame.to_world(uniform_cone(u, cos_max));
+    // Near root of the ray against the sphere; tangent if rounding misses.
+    let b = wi.dot(to_c);
+    let disc = (r2 - (d2 - b * b)).max(0.0);
+    let dist = (b - disc.sqrt()).max(0.0);
+    let pdf = sel / (2.0 * PI * (1.0 - cos_max).max(1e-12));
+    LightSample {
+        wi,
+        dist,
+        weight: radiance / pdf,
+        pdf,
+        delta: false,
+        prim,
+    }
+}
+
+/// The emitter of the emissive primitive `prim` (index `i`) and its surface area.
+fn area_emitter(prim: &Prim, i: u32, radiance: Vec3, two_sided: bool) -> (Emitter, f64) {
+    match *prim {
+        Prim::Tri { v0, e1, e2 } => {
+            let c = Vec3::from(e1).cross(Vec3::from(e2));
+            let area = 0.5 * c.length();
+            (
+                Emitter::Tri {
+                    prim: i,
+                    v0: v0.into(),
+                    e1: e1.into(),
+                    e2: e2.into(),
+                    n: c.normalize(),
+                    area,
+                    radiance,
+                    two_sided,
+                },
+                f64::from(area),
+            )
+        }
+        Prim::Sphere { center, radius } => (
+            Emitter::Sphere {
+                prim: i,
+                center: center.into(),
+                radius,
+                radiance,
+                two_sided,
+            },
+            4.0 * std::f64::consts::PI * f64::from(radius) * f64::from(radius),
+        ),
+    }
+}
+
+/// A point, spot or directional light with its power Φ (a directional light's through
+/// the scene's bounding disc of radius `r_scene`); `None` for a black or degenerate one,
+/// and for the environment (summed apart: [`Lights::build`]).
+fn local_light(l: &Light, r_scene: f64) -> Option<(Emitter, f64)> {
+    let (e, p, ok) = match *l {
+        Light::Point {
+            position,
+            intensity,
+        } => {
+            let p = 4.0 * std::f64::consts::PI * f64::from(average(intensity));
+            let e = Emitter::Point {
+                position,
+                intensity,
+            };
+            (e, p, intensity.is_finite())
+        }
+        Light::Directional {
+            direction,
+            irradiance,
+        } => {
+            let p = std::f64::consts::PI * r_scene * r_scene * f64::from(average(irradiance));
+            let d = direction.normalize_or_zero();
+            let e = Emitter::Directional {
+                direction: d,
+                irradiance,
+            };
+            (e, p, irradiance.is_finite() && d != Vec3::ZERO)
+        }
+        Light::Spot {
+            position,
+            direction,
+            intensity,
+            cos_inner,
+            cos_outer,
+            falloff,
+        } => {
+            // pbrt-v4 SpotLight::Phi: the full cone, and half the falloff band
+            // (exact for a linear ramp in cos θ, close for the others).
+            let solid = 2.0
+                * std::f64::consts::PI
+                * ((1.0 - f64::from(cos_inner)) + 0.5 * f64::from(cos_inner - cos_outer).max(0.0));
+            let p = solid * f64::from(average(intensity));
+            let e = Emitter::Spot {
+                position,
+                direction,
+                intensity,
+                cos_inner,
+                cos_outer,
+                falloff,
+            };
+            (e, p, intensity.is_finite() && direction != Vec3::ZERO)
+        }
+        Light::Environment { .. } => return None,
+    };
+    (p > 0.0 && ok).then_some((e, p))
+}
+
+/// Selection probabilities proportional to `power`, and their running sum (the last
+/// entry forced to 1 so that every `u < 1` selects a light).
+fn selection(power: &[f64]) -> (Vec<f32>, Vec<f32>) {
+    let total: f64 = power.iter().sum();
+    let pmf: Vec<f32> = if total > 0.0 && total.is_finite() {
+        power.iter().map(|p| (p / total) as f32).collect()
+    } else {
+        // Overflowing power estimates (radiance near f32::MAX): fall back to uniform.
+        vec![1.0 / power.len().max(1) as f32; power.len()]
+    };
+    let mut cdf = Vec::with_capacity(pmf.len());
+    let mut acc = 0.0f64;
+    for p in &pmf {
+        acc += f64::from(*p);
+        cdf.push(acc as f32);
+    }
+    if let Some(last) = cdf.last_mut() {
+        *last = 1.0;
+    }
+    (pmf, cdf)
 }
 
 /// A point drawn uniformly by area on an emitter of total `area`, with normal `n`.

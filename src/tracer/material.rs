@@ -183,99 +183,90 @@ impl Bsdf {
             }
             Bsdf::MetalRough {
                 metallic, alpha, ..
-            } => {
-                if wo.z <= 0.0 {
-                    return None;
-                }
-                let wi = if uc < metal_rough_spec_prob(metallic) {
-                    reflect(wo, sample_ggx_vndf(wo, alpha, u))
-                } else {
-                    cosine_hemisphere(u)
-                };
-                if wi.z <= 0.0 {
-                    return None;
-                }
-                let (f_cos, pdf) = self.eval(wo, wi);
-                (pdf > 0.0).then(|| BsdfSample {
-                    wi,
-                    weight: f_cos / pdf,
-                    pdf,
-                    delta: false,
-                })
-            }
+            } => self.sample_two_lobes(wo, u, uc < metal_rough_spec_prob(metallic), alpha),
             Bsdf::CoatedDiffuse {
                 albedo, eta, alpha, ..
             } => {
                 if wo.z <= 0.0 {
                     return None;
                 }
-                let wi = if uc < coated_spec_prob(albedo, eta, wo.z) {
-                    reflect(wo, sample_ggx_vndf(wo, alpha, u))
-                } else {
-                    cosine_hemisphere(u)
-                };
-                if wi.z <= 0.0 {
-                    return None;
-                }
-                let (f_cos, pdf) = self.eval(wo, wi);
-                (pdf > 0.0).then(|| BsdfSample {
-                    wi,
-                    weight: f_cos / pdf,
-                    pdf,
-                    delta: false,
-                })
+                self.sample_two_lobes(wo, u, uc < coated_spec_prob(albedo, eta, wo.z), alpha)
             }
             Bsdf::Mirror { reflectance } => {
                 if wo.z <= 0.0 {
                     return None;
                 }
-                Some(BsdfSample {
-                    wi: Vec3::new(-wo.x, -wo.y, wo.z),
-                    weight: reflectance,
-                    pdf: 0.0,
-                    delta: true,
-                })
+                Some(specular_reflection(wo, reflectance))
             }
-            Bsdf::Dielectric { ior, tint } => {
-                // wo.z > 0: outside (the side the geometric normal points to).
-                let entering = wo.z > 0.0;
-                let eta = if entering { 1.0 / ior } else { ior }; // η_wo / η_wi
-                let cos_o = wo.z.abs();
-                let f = fresnel_dielectric(cos_o, eta);
-                if uc < f {
-                    let wi = Vec3::new(-wo.x, -wo.y, wo.z);
-                    return Some(BsdfSample {
-                        wi,
-                        weight: Vec3::ONE,
-                        pdf: 0.0,
-                        delta: true,
-                    });
-                }
-                let sin2_t = eta * eta * (1.0 - cos_o * cos_o).max(0.0);
-                if sin2_t >= 1.0 {
-                    // Unreachable in exact arithmetic (f = 1 then); guards rounding.
-                    let wi = Vec3::new(-wo.x, -wo.y, wo.z);
-                    return Some(BsdfSample {
-                        wi,
-                        weight: Vec3::ONE,
-                        pdf: 0.0,
-                        delta: true,
-                    });
-                }
-                let cos_t = (1.0 - sin2_t).sqrt();
-                let z = if entering { -cos_t } else { cos_t };
-                let wi = Vec3::new(-wo.x * eta, -wo.y * eta, z);
-                // Radiance is compressed by (η_wo/η_wi)² across the interface (Veach 1997,
-                // §5.2); it cancels over a round trip through a closed object.
-                Some(BsdfSample {
-                    wi,
-                    weight: tint * (eta * eta),
-                    pdf: 0.0,
-                    delta: true,
-                })
-            }
+            Bsdf::Dielectric { ior, tint } => Some(sample_dielectric(wo, ior, tint, uc)),
             Bsdf::Black => None,
         }
+    }
+
+    /// One-sample MIS over a GGX lobe (visible normals, Heitz 2018) and a cosine lobe
+    /// (metallic-roughness, coated diffuse): `spec` says which one draws `wi`; the
+    /// weight uses the mixture's pdf from [`Bsdf::eval`].
+    #[inline(always)]
+    fn sample_two_lobes(&self, wo: Vec3, u: Vec2, spec: bool, alpha: f32) -> Option<BsdfSample> {
+        if wo.z <= 0.0 {
+            return None;
+        }
+        let wi = if spec {
+            reflect(wo, sample_ggx_vndf(wo, alpha, u))
+        } else {
+            cosine_hemisphere(u)
+        };
+        if wi.z <= 0.0 {
+            return None;
+        }
+        let (f_cos, pdf) = self.eval(wo, wi);
+        (pdf > 0.0).then(|| BsdfSample {
+            wi,
+            weight: f_cos / pdf,
+            pdf,
+            delta: false,
+        })
+    }
+}
+
+/// The mirror direction of `wo` about the normal, with weight `weight` (a delta lobe).
+#[inline(always)]
+fn specular_reflection(wo: Vec3, weight: Vec3) -> BsdfSample {
+    BsdfSample {
+        wi: Vec3::new(-wo.x, -wo.y, wo.z),
+        weight,
+        pdf: 0.0,
+        delta: true,
+    }
+}
+
+/// A smooth dielectric interface of index `ior` (outside: 1): reflection with the
+/// Fresnel probability, refraction (Snell) otherwise, its radiance tinted by `tint`.
+/// `wo.z > 0` is outside, the side the geometric normal points to.
+#[inline(always)]
+fn sample_dielectric(wo: Vec3, ior: f32, tint: Vec3, uc: f32) -> BsdfSample {
+    let entering = wo.z > 0.0;
+    let eta = if entering { 1.0 / ior } else { ior }; // η_wo / η_wi
+    let cos_o = wo.z.abs();
+    let f = fresnel_dielectric(cos_o, eta);
+    if uc < f {
+        return specular_reflection(wo, Vec3::ONE);
+    }
+    let sin2_t = eta * eta * (1.0 - cos_o * cos_o).max(0.0);
+    if sin2_t >= 1.0 {
+        // Unreachable in exact arithmetic (f = 1 then); guards rounding.
+        return specular_reflection(wo, Vec3::ONE);
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let z = if entering { -cos_t } else { cos_t };
+    let wi = Vec3::new(-wo.x * eta, -wo.y * eta, z);
+    // Radiance is compressed by (η_wo/η_wi)² across the interface (Veach 1997,
+    // §5.2); it cancels over a round trip through a closed object.
+    BsdfSample {
+        wi,
+        weight: tint * (eta * eta),
+        pdf: 0.0,
+        delta: true,
     }
 }
 

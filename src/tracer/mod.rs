@@ -381,6 +381,123 @@ pub(crate) enum ResolvedMaterial {
     },
 }
 
+impl Features {
+    /// The flags of `scene`, whose lights are `lights`: a feature counts only where a
+    /// shape uses it (an unused material costs nothing).
+    fn of(scene: &Scene, lights: &light::Lights) -> Self {
+        let used = |f: &dyn Fn(&Material) -> bool| {
+            scene
+                .shapes
+                .iter()
+                .any(|s| scene.materials.get(s.material() as usize).is_some_and(f))
+        };
+        Features {
+            has_lights: !lights.is_empty(),
+            has_emitters: lights.emitters.iter().any(|e| {
+                matches!(
+                    e,
+                    light::Emitter::Tri { .. } | light::Emitter::Sphere { .. }
+                )
+            }),
+            has_environment: lights.env_radiance.is_some(),
+            has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
+            has_glossy: used(&|m| {
+                matches!(
+                    m,
+                    Material::Glossy { .. }
+                        | Material::Conductor { .. }
+                        | Material::MetallicRoughness { .. }
+                        | Material::CoatedDiffuse { .. }
+                )
+            }),
+            has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
+            // Only a textured Lambertian surface gives the progressive loop an albedo to
+            // divide by (`PixelOracle::texture_albedo`).
+            has_texture: used(&|m| {
+                matches!(
+                    m,
+                    Material::Diffuse {
+                        albedo: Texture::Checker { .. } | Texture::Noise { .. } | Texture::Image(_)
+                    }
+                )
+            }),
+            has_spheres: scene
+                .shapes
+                .iter()
+                .any(|s| matches!(s, Shape::Sphere { .. })),
+        }
+    }
+}
+
+impl ResolvedMaterial {
+    /// `m` resolved for shading: constant textures fold into a fixed BSDF, roughness
+    /// becomes the microfacet α = roughness² (clamped at [`material::MIN_ALPHA`]).
+    fn of(m: &Material) -> Self {
+        match *m {
+            Material::Diffuse {
+                albedo: Texture::Constant(c),
+            } => ResolvedMaterial::Fixed(Bsdf::Diffuse { albedo: c }),
+            Material::Diffuse { albedo } => ResolvedMaterial::Textured(albedo),
+            Material::Glossy { albedo, roughness } => ResolvedMaterial::Fixed(Bsdf::Glossy {
+                albedo,
+                alpha: (roughness * roughness).max(material::MIN_ALPHA),
+            }),
+            Material::Conductor { eta, k, roughness } => ResolvedMaterial::Fixed(Bsdf::Conductor {
+                eta,
+                k,
+                alpha: (roughness * roughness).max(material::MIN_ALPHA),
+            }),
+            Material::MetallicRoughness {
+                base_color: Texture::Constant(base),
+                metallic,
+                roughness,
+            } => ResolvedMaterial::Fixed(Bsdf::MetalRough {
+                base,
+                metallic,
+                alpha: (roughness * roughness).max(material::MIN_ALPHA),
+            }),
+            Material::MetallicRoughness {
+                base_color,
+                metallic,
+                roughness,
+            } => ResolvedMaterial::TexturedMetalRough {
+                base: base_color,
+                metallic,
+                alpha: (roughness * roughness).max(material::MIN_ALPHA),
+            },
+            Material::CoatedDiffuse {
+                reflectance,
+                roughness,
+                ior,
+            } => {
+                let (eta, alpha) = (ior, (roughness * roughness).max(material::MIN_ALPHA));
+                let fdr_int = material::internal_diffuse_reflectance(ior);
+                match reflectance {
+                    Texture::Constant(albedo) => ResolvedMaterial::Fixed(Bsdf::CoatedDiffuse {
+                        albedo,
+                        eta,
+                        alpha,
+                        fdr_int,
+                    }),
+                    reflectance => ResolvedMaterial::TexturedCoated {
+                        reflectance,
+                        eta,
+                        alpha,
+                        fdr_int,
+                    },
+                }
+            }
+            Material::Mirror { reflectance } => {
+                ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
+            }
+            Material::Dielectric { ior, tint } => {
+                ResolvedMaterial::Fixed(Bsdf::Dielectric { ior, tint })
+            }
+            Material::Emissive { .. } => ResolvedMaterial::Fixed(Bsdf::Black),
+        }
+    }
+}
+
 /// The path tracer over a prepared scene (BVH, emitter list, feature flags). Immutable
 /// once built and shared by every thread (Tungsten's `TraceableScene`).
 pub struct PathTracer {
@@ -419,115 +536,9 @@ impl PathTracer {
         cancel.check()?;
         let lights = light::Lights::build(scene, &mut geo);
         cancel.check()?;
-        let materials: Vec<ResolvedMaterial> = scene
-            .materials
-            .iter()
-            .map(|m| match *m {
-                Material::Diffuse {
-                    albedo: Texture::Constant(c),
-                } => ResolvedMaterial::Fixed(Bsdf::Diffuse { albedo: c }),
-                Material::Diffuse { albedo } => ResolvedMaterial::Textured(albedo),
-                Material::Glossy { albedo, roughness } => ResolvedMaterial::Fixed(Bsdf::Glossy {
-                    albedo,
-                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
-                }),
-                Material::Conductor { eta, k, roughness } => {
-                    ResolvedMaterial::Fixed(Bsdf::Conductor {
-                        eta,
-                        k,
-                        alpha: (roughness * roughness).max(material::MIN_ALPHA),
-                    })
-                }
-                Material::MetallicRoughness {
-                    base_color: Texture::Constant(base),
-                    metallic,
-                    roughness,
-                } => ResolvedMaterial::Fixed(Bsdf::MetalRough {
-                    base,
-                    metallic,
-                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
-                }),
-                Material::MetallicRoughness {
-                    base_color,
-                    metallic,
-                    roughness,
-                } => ResolvedMaterial::TexturedMetalRough {
-                    base: base_color,
-                    metallic,
-                    alpha: (roughness * roughness).max(material::MIN_ALPHA),
-                },
-                Material::CoatedDiffuse {
-                    reflectance,
-                    roughness,
-                    ior,
-                } => {
-                    let (eta, alpha) = (ior, (roughness * roughness).max(material::MIN_ALPHA));
-                    let fdr_int = material::internal_diffuse_reflectance(ior);
-                    match reflectance {
-                        Texture::Constant(albedo) => ResolvedMaterial::Fixed(Bsdf::CoatedDiffuse {
-                            albedo,
-                            eta,
-                            alpha,
-                            fdr_int,
-                        }),
-                        reflectance => ResolvedMaterial::TexturedCoated {
-                            reflectance,
-                            eta,
-                            alpha,
-                            fdr_int,
-                        },
-                    }
-                }
-                Material::Mirror { reflectance } => {
-                    ResolvedMaterial::Fixed(Bsdf::Mirror { reflectance })
-                }
-                Material::Dielectric { ior, tint } => {
-                    ResolvedMaterial::Fixed(Bsdf::Dielectric { ior, tint })
-                }
-                Material::Emissive { .. } => ResolvedMaterial::Fixed(Bsdf::Black),
-            })
-            .collect();
-        let used = |f: &dyn Fn(&Material) -> bool| {
-            scene
-                .shapes
-                .iter()
-                .any(|s| scene.materials.get(s.material() as usize).is_some_and(f))
-        };
-        let features = Features {
-            has_lights: !lights.is_empty(),
-            has_emitters: lights.emitters.iter().any(|e| {
-                matches!(
-                    e,
-                    light::Emitter::Tri { .. } | light::Emitter::Sphere { .. }
-                )
-            }),
-            has_environment: lights.env_radiance.is_some(),
-            has_dielectric: used(&|m| matches!(m, Material::Dielectric { .. })),
-            has_glossy: used(&|m| {
-                matches!(
-                    m,
-                    Material::Glossy { .. }
-                        | Material::Conductor { .. }
-                        | Material::MetallicRoughness { .. }
-                        | Material::CoatedDiffuse { .. }
-                )
-            }),
-            has_mirror: used(&|m| matches!(m, Material::Mirror { .. })),
-            // Only a textured Lambertian surface gives the progressive loop an albedo to
-            // divide by (`PixelOracle::texture_albedo`).
-            has_texture: used(&|m| {
-                matches!(
-                    m,
-                    Material::Diffuse {
-                        albedo: Texture::Checker { .. } | Texture::Noise { .. } | Texture::Image(_)
-                    }
-                )
-            }),
-            has_spheres: scene
-                .shapes
-                .iter()
-                .any(|s| matches!(s, Shape::Sphere { .. })),
-        };
+        let materials: Vec<ResolvedMaterial> =
+            scene.materials.iter().map(ResolvedMaterial::of).collect();
+        let features = Features::of(scene, &lights);
         let camera = camera::Pinhole::new(&scene.camera, scene.width, scene.height);
         let primary = primary::CameraRays::build(&geo, &camera, scene.width, scene.height);
         Ok(Self {

@@ -107,105 +107,29 @@ impl CameraRays {
         if n == 0 || n > MAX_PRIMS || width == 0 || height == 0 {
             return None;
         }
-        let mut tile_shift = 3u32;
-        let tiles = |s: u32| (width.div_ceil(1 << s), height.div_ceil(1 << s));
-        while u64::from(tiles(tile_shift).0) * u64::from(tiles(tile_shift).1) > u64::from(MAX_TILES)
-        {
-            tile_shift += 1;
-        }
-        let (tiles_x, tiles_y) = tiles(tile_shift);
-        let tile_count = (tiles_x * tiles_y) as usize;
-
-        // Per-tile lists, primitives in ascending order.
-        let mut per_tile: Vec<Vec<u32>> = vec![Vec::new(); tile_count];
-        let mut entries = 0usize;
-        for (i, p) in geo.prims.iter().enumerate() {
-            match region(p, cam, width, height, tile_shift, tiles_x, tiles_y) {
-                Region::Nowhere => {}
-                Region::Everywhere => {
-                    per_tile.iter_mut().for_each(|l| l.push(i as u32));
-                    entries += tile_count;
-                }
-                Region::Tiles { x0, x1, y0, y1 } => {
-                    for ty in y0..=y1 {
-                        for tx in x0..=x1 {
-                            per_tile[(ty * tiles_x + tx) as usize].push(i as u32);
-                        }
-                    }
-                    entries += ((x1 - x0 + 1) * (y1 - y0 + 1)) as usize;
-                }
-            }
-            if entries > MAX_MEAN_CANDIDATES * tile_count {
-                return None;
-            }
-        }
-
-        let o = Vec3A::from(cam.origin);
+        let grid = Grid::fitting(width, height);
+        let (per_tile, entries) = per_tile_lists(geo, cam, width, height, &grid)?;
+        let mut packed = Packed::default();
         let mut ids: HashMap<&[u32], u32> = HashMap::new();
-        let mut tile_list = Vec::with_capacity(tile_count);
-        let mut lists = Vec::new();
-        let mut packets = Vec::new();
-        let mut spheres = Vec::new();
+        let mut tile_list = Vec::with_capacity(per_tile.len());
+        let o = Vec3A::from(cam.origin);
         for l in &per_tile {
-            let id = *ids.entry(l.as_slice()).or_insert_with(|| {
-                let p0 = packets.len() as u32;
-                let s0 = spheres.len() as u32;
-                let mut lanes = 0usize;
-                for &i in l {
-                    match geo.prims[i as usize] {
-                        Prim::Tri { v0, e1, e2 } => {
-                            let k = lanes % 4;
-                            if k == 0 {
-                                packets.push(EMPTY_PACKET);
-                            }
-                            let Some(pk) = packets.last_mut() else {
-                                continue;
-                            };
-                            // Exactly the values bvh.rs `tri_t` computes for a ray from `o`.
-                            let tv = o - v0;
-                            let qv = tv.cross(e1);
-                            for j in 0..3 {
-                                pk.e1[j][k] = e1[j];
-                                pk.e2[j][k] = e2[j];
-                                pk.tv[j][k] = tv[j];
-                                pk.qv[j][k] = qv[j];
-                            }
-                            pk.tnum[k] = e2.dot(qv);
-                            pk.prim[k] = i;
-                            lanes += 1;
-                        }
-                        Prim::Sphere { center, radius } => {
-                            let f = o - center;
-                            let r2 = radius * radius;
-                            spheres.push(CamSphere {
-                                prim: i,
-                                f,
-                                r2,
-                                cc: f.length_squared() - r2,
-                            });
-                        }
-                    }
-                }
-                lists.push(List {
-                    p0,
-                    p1: packets.len() as u32,
-                    s0,
-                    s1: spheres.len() as u32,
-                });
-                (lists.len() - 1) as u32
-            });
+            // Tiles with equal lists share one.
+            let id = *ids
+                .entry(l.as_slice())
+                .or_insert_with(|| packed.push_list(geo, o, l));
             tile_list.push(id);
         }
         Some(Self {
             origin: cam.origin,
             width,
             height,
-            tile_shift,
-            tiles_x,
+            tile_shift: grid.shift,
+            tiles_x: grid.x,
             tile_list,
-            lists,
-            packets,
-            spheres,
+            lists: packed.lists,
+            packets: packed.packets,
+            spheres: packed.spheres,
             entries,
         })
     }
@@ -225,21 +149,12 @@ impl CameraRays {
     /// Closest hit of the camera ray `d` (unit) through pixel (x, y): what
     /// `geo.intersect(camera.origin, d, ∞, NONE)` returns. Pixels outside the image fall
     /// back to the BVH.
+    // Kept whole (~80 lines): the packet and sphere loops are the hot body of every camera
+    // ray, and their best-so-far state (t, prim, u, v, tie) lives in registers across both.
     #[inline(always)]
     #[must_use]
     pub fn intersect(&self, geo: &Geometry, x: u32, y: u32, d: Vec3) -> Option<Hit> {
-        let list = if x < self.width && y < self.height {
-            let tile = ((y >> self.tile_shift) * self.tiles_x + (x >> self.tile_shift)) as usize;
-            self.tile_list
-                .get(tile)
-                .and_then(|&l| self.lists.get(l as usize))
-        } else {
-            None
-        };
-        let (Some(packets), Some(spheres)) = (
-            list.and_then(|l| self.packets.get(l.p0 as usize..l.p1 as usize)),
-            list.and_then(|l| self.spheres.get(l.s0 as usize..l.s1 as usize)),
-        ) else {
+        let Some((packets, spheres)) = self.candidates(x, y) else {
             return geo.intersect(self.origin, d, f32::INFINITY, NONE);
         };
         let da = Vec3A::from(d);
@@ -313,19 +228,156 @@ impl CameraRays {
         if best == NONE {
             return None;
         }
-        // bvh.rs `tri_uv` computes the same u and v, then clamps them so.
-        let (u, v) = if sphere_hit {
-            (0.0, 0.0)
-        } else {
-            let u = best_u.clamp(0.0, 1.0);
-            (u, best_v.clamp(0.0, 1.0 - u))
-        };
-        Some(Hit {
-            t: best_t,
-            prim: best,
-            u,
-            v,
-        })
+        Some(hit_of(best_t, best, sphere_hit, best_u, best_v))
+    }
+
+    /// The candidate triangles and spheres of pixel (x, y)'s tile, or `None` outside the
+    /// image.
+    #[inline(always)]
+    fn candidates(&self, x: u32, y: u32) -> Option<(&[TriPacket], &[CamSphere])> {
+        if x >= self.width || y >= self.height {
+            return None;
+        }
+        let tile = ((y >> self.tile_shift) * self.tiles_x + (x >> self.tile_shift)) as usize;
+        let l = self.lists.get(*self.tile_list.get(tile)? as usize)?;
+        Some((
+            self.packets.get(l.p0 as usize..l.p1 as usize)?,
+            self.spheres.get(l.s0 as usize..l.s1 as usize)?,
+        ))
+    }
+}
+
+/// The hit on `prim` at `t`, its barycentrics clamped as bvh.rs `tri_uv` clamps the same
+/// u and v (a sphere's are zero).
+#[inline(always)]
+fn hit_of(t: f32, prim: u32, sphere: bool, u: f32, v: f32) -> Hit {
+    let (u, v) = if sphere {
+        (0.0, 0.0)
+    } else {
+        let u = u.clamp(0.0, 1.0);
+        (u, v.clamp(0.0, 1.0 - u))
+    };
+    Hit { t, prim, u, v }
+}
+
+/// The screen's tiling: tiles of 2^`shift` pixels a side, `x` × `y` of them.
+struct Grid {
+    shift: u32,
+    x: u32,
+    y: u32,
+}
+
+impl Grid {
+    /// The smallest tiles, from 8 pixels a side, of which there are at most [`MAX_TILES`].
+    fn fitting(width: u32, height: u32) -> Self {
+        let mut shift = 3u32;
+        let tiles = |s: u32| (width.div_ceil(1 << s), height.div_ceil(1 << s));
+        while u64::from(tiles(shift).0) * u64::from(tiles(shift).1) > u64::from(MAX_TILES) {
+            shift += 1;
+        }
+        let (x, y) = tiles(shift);
+        Grid { shift, x, y }
+    }
+
+    fn count(&self) -> usize {
+        (self.x * self.y) as usize
+    }
+}
+
+/// Per tile, the primitives that may be seen in it (ascending), and the sum of the list
+/// lengths; `None` once that sum passes [`MAX_MEAN_CANDIDATES`] per tile (the BVH is then
+/// as fast).
+fn per_tile_lists(
+    geo: &Geometry,
+    cam: &Pinhole,
+    width: u32,
+    height: u32,
+    grid: &Grid,
+) -> Option<(Vec<Vec<u32>>, usize)> {
+    let tile_count = grid.count();
+    let mut per_tile: Vec<Vec<u32>> = vec![Vec::new(); tile_count];
+    let mut entries = 0usize;
+    for (i, p) in geo.prims.iter().enumerate() {
+        match region(p, cam, width, height, grid.shift, grid.x, grid.y) {
+            Region::Nowhere => {}
+            Region::Everywhere => {
+                per_tile.iter_mut().for_each(|l| l.push(i as u32));
+                entries += tile_count;
+            }
+            Region::Tiles { x0, x1, y0, y1 } => {
+                for ty in y0..=y1 {
+                    for tx in x0..=x1 {
+                        per_tile[(ty * grid.x + tx) as usize].push(i as u32);
+                    }
+                }
+                entries += ((x1 - x0 + 1) * (y1 - y0 + 1)) as usize;
+            }
+        }
+        if entries > MAX_MEAN_CANDIDATES * tile_count {
+            return None;
+        }
+    }
+    Some((per_tile, entries))
+}
+
+/// The distinct candidate lists, packed: triangles four to a [`TriPacket`], spheres as
+/// [`CamSphere`]s, both with their origin-dependent terms precomputed.
+#[derive(Default)]
+struct Packed {
+    lists: Vec<List>,
+    packets: Vec<TriPacket>,
+    spheres: Vec<CamSphere>,
+}
+
+impl Packed {
+    /// Packs the primitives `l` as seen from the camera origin `o`; returns the new list's
+    /// index.
+    fn push_list(&mut self, geo: &Geometry, o: Vec3A, l: &[u32]) -> u32 {
+        let p0 = self.packets.len() as u32;
+        let s0 = self.spheres.len() as u32;
+        let mut lanes = 0usize;
+        for &i in l {
+            match geo.prims[i as usize] {
+                Prim::Tri { v0, e1, e2 } => {
+                    let k = lanes % 4;
+                    if k == 0 {
+                        self.packets.push(EMPTY_PACKET);
+                    }
+                    let Some(pk) = self.packets.last_mut() else {
+                        continue;
+                    };
+                    // Exactly the values bvh.rs `tri_t` computes for a ray from `o`.
+                    let tv = o - v0;
+                    let qv = tv.cross(e1);
+                    for j in 0..3 {
+                        pk.e1[j][k] = e1[j];
+                        pk.e2[j][k] = e2[j];
+                        pk.tv[j][k] = tv[j];
+                        pk.qv[j][k] = qv[j];
+                    }
+                    pk.tnum[k] = e2.dot(qv);
+                    pk.prim[k] = i;
+                    lanes += 1;
+                }
+                Prim::Sphere { center, radius } => {
+                    let f = o - center;
+                    let r2 = radius * radius;
+                    self.spheres.push(CamSphere {
+                        prim: i,
+                        f,
+                        r2,
+                        cc: f.length_squared() - r2,
+                    });
+                }
+            }
+        }
+        self.lists.push(List {
+            p0,
+            p1: self.packets.len() as u32,
+            s0,
+            s1: self.spheres.len() as u32,
+        });
+        (self.lists.len() - 1) as u32
     }
 }
 

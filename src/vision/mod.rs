@@ -13,7 +13,7 @@
 //!
 //! Speed: the per-pixel part runs in kernel.rs, 8 pixels per call in struct-of-arrays form
 //! (vectorised, AVX2 when available), with fast log2/exp2 powers (fastmath.rs) checked
-//! against calib.rs's exact f64 formulas in tests.rs. Decompose (pyramid.rs) runs fused
+//! against calib.rs's exact f64 formulas in tests.rs. Decompose (pyramid/) runs fused
 //! row/column passes per band of rows (AVX-512 or AVX2 kernels, run-time dispatch, all
 //! bitwise identical) with the receptor conversion and the NaN/∞ check fused in, and
 //! recycles the planes of dropped stacks (so a model keeps about one stack's worth of
@@ -97,7 +97,7 @@ pub struct VisionModel {
     transducer: TransducerConsts,
     opp: [[f32; 4]; 3],
     /// Reused planes of [`Self::decompose`]: the horizontal-pass scratch and the levels
-    /// of dropped [`ContrastStack`]s (pyramid.rs [`BufferPool`]).
+    /// of dropped [`ContrastStack`]s (pyramid/mod.rs [`BufferPool`]).
     pool: Arc<BufferPool>,
 }
 
@@ -343,7 +343,7 @@ impl VisionModel {
         };
         // §2.1 (receptor signals) happens inside the first level's horizontal pass.
         let pool = &self.pool;
-        // The first level flags non-finite input while converting it (pyramid.rs
+        // The first level flags non-finite input while converting it (pyramid/
         // `Source::Display`); the exact first pixel is then found by a scan.
         let bad = std::sync::atomic::AtomicBool::new(false);
         let levels = build_levels(

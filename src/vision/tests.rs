@@ -293,7 +293,7 @@ fn recycled_level_buffers_give_identical_stacks() {
 /// plainest one (portable loops, one band per level: no halo, no parallel split), through
 /// the whole model (receptor conversion, every level), for odd sizes and pixel densities
 /// that change the kernels. Each level of each path is checked against the per-sample
-/// reference in pyramid.rs.
+/// reference in pyramid/mod.rs.
 #[test]
 fn every_pyramid_path_gives_the_same_stack() {
     let mut paths = Vec::new();
