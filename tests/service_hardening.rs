@@ -1,6 +1,7 @@
 //! Hardening of the service, against the real binary: a cancel that survives
 //! SIGKILL, poison jobs, the per-job time limit, the million-triangle mesh, cross-site
-//! requests without a token, bounded names, and the smaller points of the issue.
+//! requests without a token, bounded names, and smaller points of the token and of the
+//! error answers.
 
 mod common;
 
@@ -616,7 +617,7 @@ async fn names_are_bounded_and_echoes_are_clipped() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_smaller_points_of_issue_14() {
+async fn the_smaller_hardening_points() {
     let dir = tempfile::tempdir().unwrap();
     let (s, p) = Srv::start(dir.path(), &["--token", "s3cret"], None).await;
     let scene = common::sphere_scene("x", 8, 8, "reference", 1, 1);

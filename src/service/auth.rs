@@ -3,8 +3,8 @@
 //! because browsers cannot set headers on a WebSocket. `/`, `/healthz` and `/metrics`
 //! stay open (the viewer page asks for the token itself; probes need no secret).
 //!
-//! Without a token, any web page the server's user opens could otherwise drive it (issue
-//! 14: a cross-origin `text/plain` form post got 201; DNS rebinding got read, cancel and
+//! Without a token, any web page the server's user opens could otherwise drive it (a
+//! probe found a cross-origin `text/plain` form post got 201; DNS rebinding got read, cancel and
 //! delete). [`check_origin`] closes that: the `Host` must name this server, an `Origin`
 //! must be this server's, and a submission must carry a scene or import content type,
 //! which no form can send. No CORS header is ever sent, so other origins cannot read

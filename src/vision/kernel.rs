@@ -10,13 +10,13 @@
 //! `log2` + one vector `exp2` (fastmath.rs, relative error ~1e-6) over 8 pixels, and the
 //! bilinear lookup geometry is computed once and shared by the two images.
 //!
-//! Issue #3 (full 512² map ≈ 87 → 62 ms of CPU): the kernel is bound by the latency of
+//! Full 512² map ≈ 87 → 62 ms of CPU: the kernel is bound by the latency of
 //! the power chains, so fastmath.rs's `log2`/`exp2` lost their division and evaluate their
 //! polynomials with Estrin's scheme; the lookup geometry is computed in vector lanes and
 //! the bilinear interpolation 4 receptors at a time followed by a transpose (both were
 //! scalar code before).
 //!
-//! Issue #4 (the progressive renderer's block map, 2 successive frames): LANES 8 → 16
+//! For the progressive renderer's block map (2 successive frames): LANES 8 → 16
 //! with an AVX-512 path, and bands whose signals are bitwise unchanged between the two
 //! images are skipped (`distance8`); both change no bit of any distance.
 //!
@@ -32,7 +32,7 @@ use super::pyramid::{Plane, P4};
 use super::{ContrastStack, VisionModel, MAX_BANDS};
 use crate::raster::PixelCoord;
 
-/// Pixels per kernel call. Issue #4: 16 (was 8) so the AVX-512 path fills a 512-bit
+/// Pixels per kernel call: 16 (was 8) so the AVX-512 path fills a 512-bit
 /// register per value; on AVX2 each value is two 256-bit registers (measured no slower:
 /// more independent work per power chain). Lanes are independent, so the width changes
 /// no result.
@@ -384,7 +384,7 @@ impl VisionModel {
             .min(b.levels.len().saturating_sub(1));
         let lva = Self::fetch_levels(a, &ta);
         let lvb = Self::fetch_levels(b, tb);
-        // Issue #4: between two progressive frames most of the image is unchanged, so a
+        // Between two progressive frames most of the image is unchanged, so a
         // band often reads bitwise-identical signals (its level and the next coarser one)
         // in both images for all 8 pixels. Its visible contrasts are then identical, every
         // ΔV is 0 (or NaN from ∞ − ∞), which leaves m unchanged (`max` ignores NaN) and adds
@@ -487,7 +487,7 @@ impl VisionModel {
         self.batch_kernel(a, b, at, out);
     }
 
-    /// Issue #4: the same kernel as one 16-lane AVX-512 register per value. On the dev
+    /// The same kernel as one 16-lane AVX-512 register per value. On the dev
     /// box (AMD EPYC, AVX-512) the kernel on progressive-frame pixels went from ≈ 4.7 to
     /// ≈ 3.5 ms per 27 k pixels (benches/vision.rs, GLIMPSE_VISION_BENCH_KERNEL=1).
     /// Bitwise identical to the other paths (same IEEE operations per lane, no FMA:
@@ -550,7 +550,7 @@ impl VisionModel {
 
 #[cfg(test)]
 mod band_skip_tests {
-    //! Issue #4: skipping bands whose signals are bitwise identical in both images must
+    //! Skipping bands whose signals are bitwise identical in both images must
     //! not change a single distance bit.
     use super::*;
     use crate::raster::{Image, Rgb};
@@ -689,7 +689,7 @@ mod band_skip_tests {
 
     #[test]
     fn every_dispatch_path_gives_the_same_bits() {
-        // Issue #4: portable, AVX2 and AVX-512 code must agree bit for bit (the renderer's
+        // Portable, AVX2 and AVX-512 code must agree bit for bit (the renderer's
         // golden frames and the block map's determinism rely on it), including huge
         // values, a 1-pixel tail and pixels outside the image.
         let (w, h) = (45u32, 31u32);

@@ -265,7 +265,7 @@ fn simd_dispatch_is_bitwise_identical_to_the_portable_path() {
 
 #[test]
 fn recycled_level_buffers_give_identical_stacks() {
-    // Issue #3: dropped stacks hand their planes back to the model, and the next
+    // Dropped stacks hand their planes back to the model, and the next
     // decomposition overwrites them; stale contents must never leak into a level.
     let (w, h) = (37, 29);
     let m = VisionModel::new(display(28.0), w, h);

@@ -469,7 +469,7 @@ mod tests {
         assert!((v[0] - 3.0).abs() < 1e-5);
     }
 
-    /// Per-sample separable reference (the pre-issue-#3 loop structure): acc = 0, then
+    /// Per-sample separable reference (the loop structure before the fused kernels): acc = 0, then
     /// acc += v·w per tap, rows then columns, `mirror` for every index.
     fn naive(src: &Plane, spec: &LevelSpec) -> Plane {
         let (sw, sh, st) = (src.w as i64, src.h as i64, spec.step as i64);
