@@ -60,8 +60,9 @@ pub enum StoreError {
 /// machine.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Failure {
-    /// No connection to the database: refused, reset, timed out, or the server shutting
-    /// down (SQLSTATE class 08, 57P01–57P03).
+    /// No connection to the database: refused, reset, timed out, the server shutting
+    /// down, the database gone or the login refused (SQLSTATE classes 08 and 28, 57P01–
+    /// 57P03, 3D000).
     Unreachable,
     /// A finished job's files are gone, for good (410).
     FilesMissing,
@@ -130,7 +131,13 @@ fn db_failure(e: &sqlx::Error) -> Failure {
                 }
                 // PostgreSQL: disk_full, out of space for a table.
                 "53100" => Failure::Full,
-                c if c.starts_with("08") || matches!(c, "57P01" | "57P02" | "57P03") => {
+                // Connection exceptions, the server shutting down or starting, and a
+                // connection refused at its start (the database is gone, the login
+                // refused): no statement got through.
+                c if c.starts_with("08")
+                    || c.starts_with("28")
+                    || matches!(c, "57P01" | "57P02" | "57P03" | "3D000") =>
+                {
                     Failure::Unreachable
                 }
                 _ => Failure::Other,
@@ -571,6 +578,35 @@ impl Store {
 
 #[cfg(test)]
 mod tests {
+    use super::{Failure, StoreError};
+
+    #[test]
+    fn a_connection_failure_is_told_from_a_full_disk() {
+        let io = |k| StoreError::Io(std::io::Error::from(k));
+        assert_eq!(io(std::io::ErrorKind::StorageFull).failure(), Failure::Full);
+        let enospc = std::io::Error::from_raw_os_error(28);
+        assert_eq!(StoreError::Io(enospc).failure(), Failure::Full);
+        assert_eq!(
+            StoreError::Db(sqlx::Error::PoolTimedOut).failure(),
+            Failure::Unreachable
+        );
+        let refused = std::io::Error::from(std::io::ErrorKind::ConnectionRefused);
+        assert_eq!(
+            StoreError::Db(sqlx::Error::Io(refused)).failure(),
+            Failure::Unreachable
+        );
+        assert_eq!(
+            io(std::io::ErrorKind::PermissionDenied).failure(),
+            Failure::Other
+        );
+        assert_eq!(
+            StoreError::Corrupt(String::new()).failure(),
+            Failure::Corrupt
+        );
+        let gone = StoreError::FilesMissing(uuid::Uuid::nil(), "x/image.png".into());
+        assert_eq!(gone.failure(), Failure::FilesMissing);
+    }
+
     #[test]
     fn timestamps_have_fixed_width_so_string_order_is_time_order() {
         let t = time::macros::datetime!(2026-11-25 21:52:06.8 UTC);
