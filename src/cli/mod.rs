@@ -263,16 +263,8 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
     }
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(&a.addr)
-            .await
-            .map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", a.addr))?;
-        let local = listener.local_addr()?;
-        tracing::info!("listening on http://{local}");
-        if a.token.is_none() && !local.ip().is_loopback() {
-            tracing::warn!(
-                "listening on {local}, beyond this machine, without a token: anyone who can reach it can submit, cancel and delete jobs; set --token or GLIMPSE_TOKEN"
-            );
-        }
+        let addr = a.addr.clone();
+        let has_token = a.token.is_some();
         let mut config = crate::service::Config::new(a.data);
         config.database = a.database;
         config.workers = a.workers;
@@ -291,7 +283,24 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
             max_bytes: (a.keep_gb > 0.0).then_some((a.keep_gb * 1e9) as u64),
         };
         config.limits = limits;
-        crate::service::run(listener, config, shutdown_signal()).await
+        // The store is opened and checked first: a server that cannot start never says
+        // it is listening.
+        let started = crate::service::start(config).await?;
+        let listener = match tokio::net::TcpListener::bind(&addr).await {
+            Ok(l) => l,
+            Err(e) => {
+                started.abandon().await;
+                anyhow::bail!("cannot listen on {addr}: {e}");
+            }
+        };
+        let local = listener.local_addr()?;
+        tracing::info!("listening on http://{local}");
+        if !has_token && !local.ip().is_loopback() {
+            tracing::warn!(
+                "listening on {local}, beyond this machine, without a token: anyone who can reach it can submit, cancel and delete jobs; set --token or GLIMPSE_TOKEN"
+            );
+        }
+        started.serve(listener, shutdown_signal()).await
     })
 }
 
@@ -324,11 +333,17 @@ fn worker(a: WorkerArgs) -> anyhow::Result<()> {
     config.allowed_hosts = a.allowed_hosts;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
+        // The store first, as for `serve`.
+        let started = crate::service::start_worker(config).await?;
         let listener = match &a.metrics_addr {
             Some(addr) => {
-                let l = tokio::net::TcpListener::bind(addr)
-                    .await
-                    .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e}"))?;
+                let l = match tokio::net::TcpListener::bind(addr).await {
+                    Ok(l) => l,
+                    Err(e) => {
+                        started.abandon().await;
+                        anyhow::bail!("cannot listen on {addr}: {e}");
+                    }
+                };
                 let local = l.local_addr()?;
                 tracing::info!("/healthz and /metrics on http://{local}");
                 if !local.ip().is_loopback() {
@@ -338,7 +353,7 @@ fn worker(a: WorkerArgs) -> anyhow::Result<()> {
             }
             None => None,
         };
-        crate::service::run_worker(config, listener, shutdown_signal()).await
+        started.work(listener, shutdown_signal()).await
     })
 }
 

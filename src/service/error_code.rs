@@ -28,6 +28,12 @@ pub enum ErrorCode {
     QueueFull,
     Unauthorized,
     Unavailable,
+    /// The job database cannot be reached (PostgreSQL down or cut off from this node):
+    /// 503 like `unavailable`, but the fault is the database's connection, not a disk.
+    DatabaseUnreachable,
+    /// The job's record is there but its stored files are gone (removed outside the
+    /// server, or a disk replaced): 410, for good; the job has to be submitted again.
+    FilesMissing,
     /// The request (headers aside) was not received and answered within
     /// [`REQUEST_DEADLINE`]: a client trickling its body.
     RequestTimeout,
@@ -62,7 +68,10 @@ impl ErrorCode {
             ErrorCode::Conflict => StatusCode::CONFLICT,
             ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
             ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
-            ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::Unavailable | ErrorCode::DatabaseUnreachable => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
+            ErrorCode::FilesMissing => StatusCode::GONE,
             ErrorCode::RequestTimeout => StatusCode::REQUEST_TIMEOUT,
             ErrorCode::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ErrorCode::MisdirectedRequest => StatusCode::MISDIRECTED_REQUEST,

@@ -9,7 +9,7 @@
 
 use super::jobs::{CancelOutcome, DeleteOutcome, FrameBytes, FrameLookup, Jobs, SubmitError};
 use super::metrics::Metrics;
-use super::store::{clip, JobRecord, JobState, Layer, StoreError};
+use super::store::{clip, Failure, JobRecord, JobState, Layer, StoreError};
 use super::{auth, examples, ws};
 use crate::scene::{parse_scene, Problem, RenderMode, SceneErrorKind, SceneOrigin};
 use axum::extract::{FromRequest, FromRequestParts, Request, State};
@@ -145,24 +145,45 @@ pub struct ErrorDetail {
 }
 
 impl From<StoreError> for ApiError {
-    /// A database or file error is most often a full or unwritable disk, which passes:
-    /// 503 with `Retry-After`. A corrupt record is a 500.
+    /// A store that cannot be reached or written is a fault that passes: 503 with
+    /// `Retry-After`, saying which it is (an unreachable database, `database_unreachable`,
+    /// or a disk that refuses a write, `unavailable`). A corrupt record is a 500.
     fn from(e: StoreError) -> Self {
-        match e {
-            StoreError::Corrupt(_) => Self::internal("reading the job store", &e),
-            _ => {
-                tracing::error!("job store: {e}");
-                Self::unavailable(
-                    "the job store cannot be written or read just now (is the disk full?); retry later",
-                    STORE_RETRY_AFTER_S,
-                )
+        let message = match e.failure() {
+            Failure::Corrupt => return Self::internal("reading the job store", &e),
+            Failure::Unreachable => {
+                tracing::error!("job database unreachable: {e}");
+                let mut err = Self::unavailable(
+                    format!("the job database cannot be reached ({e}); retry later"),
+                    UNREACHABLE_RETRY_AFTER_S,
+                );
+                err.code = ErrorCode::DatabaseUnreachable;
+                return err;
             }
-        }
+            Failure::FilesMissing => {
+                // The server's own path stays in its log (`Store::check_files`).
+                let id = match &e {
+                    StoreError::FilesMissing(id, _) => id.to_string(),
+                    _ => String::new(),
+                };
+                return Self::new(
+                    ErrorCode::FilesMissing,
+                    format!("the stored images of job {id} are missing on the server (removed outside it); its record is kept, but no frame can be served: DELETE the job and submit its scene again"),
+                );
+            }
+            Failure::Full => "the job store's disk is full or read-only; retry later",
+            Failure::Other => "the job store failed to read or write just now; retry later",
+        };
+        tracing::error!("job store: {e}");
+        Self::unavailable(message, STORE_RETRY_AFTER_S)
     }
 }
 
 /// `Retry-After` when the store fails: an operator has to free space, which takes a while.
 const STORE_RETRY_AFTER_S: u32 = 30;
+/// `Retry-After` when the database cannot be reached: a restart or a failover takes
+/// seconds, and nothing is lost by asking again soon.
+const UNREACHABLE_RETRY_AFTER_S: u32 = 5;
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {

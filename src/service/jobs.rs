@@ -302,6 +302,8 @@ struct Inner {
     /// The kinds of store and job-file writes failing now (a full or unwritable disk):
     /// `/healthz` reports them.
     store_faults: WriteFaults,
+    /// Jobs whose `DELETE` removed their files but not yet their record.
+    deleting: Mutex<std::collections::HashSet<Uuid>>,
     workers: Mutex<Vec<std::thread::JoinHandle<()>>>,
     /// Test hook, called by the worker between a job's `done` and its late file writes
     /// (to hold it there and look at what a crash at that point would leave).
@@ -446,6 +448,7 @@ impl Jobs {
             stop: tokio_util::sync::CancellationToken::new(),
             job_timeout,
             store_faults: WriteFaults::default(),
+            deleting: Mutex::default(),
             workers: Mutex::new(Vec::new()),
             after_done: Mutex::new(None),
         });
@@ -557,6 +560,7 @@ impl Jobs {
         if !job.has_frame {
             return Ok(FrameLookup::NoFrame);
         }
+        self.inner.store.check_files(&job).await?;
         let path = self.inner.store.layer_path(&job, layer, exr);
         Ok(match tokio::fs::try_exists(&path).await {
             Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
@@ -584,7 +588,10 @@ impl Jobs {
         let job = match live_snap {
             Some(snap) => snap.job.clone(),
             None => match self.inner.store.get(id).await? {
-                Some(job) => job,
+                Some(job) => {
+                    self.inner.store.check_files(&job).await?;
+                    job
+                }
                 None => return Ok(FrameLookup::NotFound),
             },
         };
@@ -620,6 +627,7 @@ impl Jobs {
                 let Some(job) = self.inner.store.get(id).await? else {
                     return Ok(None);
                 };
+                self.inner.store.check_files(&job).await?;
                 let latest = match (job.has_frame, &job.progress) {
                     (true, Some(p)) => self
                         .stored_frame(&job)
@@ -771,13 +779,15 @@ impl Jobs {
         Ok(rec.filter(|r| !self.half_deleted(r)))
     }
 
-    /// Whether `job` succeeded but its image is gone: a `DELETE` removed its files (first,
-    /// to free the space a full disk needs) and then could not remove its record. It
-    /// reads as deleted, never as succeeded without its image, and the record's removal
-    /// is tried again now (and by any later `DELETE`).
+    /// Whether a `DELETE` on this node removed `job`'s files (first, to free the space a
+    /// full disk needs) and then could not remove its record. It reads as deleted, never
+    /// as succeeded without its image, and the record's removal is tried again now (and
+    /// by any later `DELETE`). A job whose files went any other way (by hand, a data
+    /// folder restored without them) reads as it is, its frames answer `410
+    /// files_missing` ([`Store::check_files`]), and its record is never removed for it:
+    /// a folder that is only missing for a while must not cost the records.
     fn half_deleted(&self, job: &JobRecord) -> bool {
-        let store = &self.inner.store;
-        if job.state != JobState::Succeeded || store.layer_path(job, Layer::Image, false).exists() {
+        if !lock(&self.inner.deleting).contains(&job.id) {
             return false;
         }
         let jobs = self.clone();
@@ -908,10 +918,16 @@ impl Jobs {
 
     /// Removes a finished job's files and record; whether there was one to remove.
     async fn remove_finished(&self, id: Uuid) -> Result<bool, StoreError> {
+        lock(&self.inner.deleting).insert(id);
         let removed = self.inner.store.delete_finished(id).await;
         match &removed {
             Ok(_) => self.inner.wrote("deleting a job"),
             Err(e) => self.inner.write_failed("deleting a job", e),
+        }
+        // Half deleted ([`Self::half_deleted`]) only while its files are gone and its
+        // record is not.
+        if removed.is_ok() || self.inner.store.job_dir(id).exists() {
+            lock(&self.inner.deleting).remove(&id);
         }
         removed
     }

@@ -157,16 +157,28 @@ pub fn server_limits() -> Limits {
     }
 }
 
-/// Serves on `listener` until `shutdown` resolves.
-///
-/// Shutdown order: stop accepting connections and close open streams; cancel running
-/// renders and release their jobs to `queued` in the store (they run again after a
-/// restart, or on another node); join the workers; close the database; return.
+/// Serves on `listener` until `shutdown` resolves: [`start`], then [`Started::serve`].
 pub async fn run(
     listener: tokio::net::TcpListener,
     config: Config,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
+    start(config).await?.serve(listener, shutdown).await
+}
+
+/// A node whose job store is open, checked and recovered and whose workers run, before
+/// it listens: everything at start-up that can fail (a corrupt or foreign database, an
+/// unreachable one, a refused option) fails here, so "listening on …" is never logged
+/// by a server about to exit.
+pub struct Started {
+    config: Config,
+    jobs: jobs::Jobs,
+    metrics: Arc<metrics::Metrics>,
+}
+
+/// Opens the store (running its migrations and, on the embedded store, its recovery)
+/// and starts this node's workers.
+pub async fn start(config: Config) -> anyhow::Result<Started> {
     let database = config
         .database
         .clone()
@@ -193,34 +205,63 @@ pub async fn run(
     )
     .await
     .map_err(|e| anyhow::anyhow!("cannot start the workers: {e}"))?;
-    let stop = tokio_util::sync::CancellationToken::new();
-    let state = app_state(&config, &jobs, metrics, &stop);
-    tokio::spawn(retention::run(
-        jobs.clone(),
-        config.data_dir.join("jobs"),
-        config.retention,
-        stop.clone(),
-    ));
-    let app = http::router(state);
-    let stop2 = stop.clone();
-    let jobs2 = jobs.clone();
-    tokio::spawn(async move {
-        shutdown.await;
-        stop2.cancel();
-        jobs2.stop_rendering();
-    });
-    serve(
-        listener,
-        app,
-        &stop,
-        config.header_timeout,
-        config.client_stall,
-    )
-    .await;
-    // Never leave workers rendering behind us.
-    stop.cancel();
-    jobs.shutdown().await;
-    Ok(())
+    Ok(Started {
+        config,
+        jobs,
+        metrics,
+    })
+}
+
+impl Started {
+    /// Serves on `listener` until `shutdown` resolves.
+    ///
+    /// Shutdown order: stop accepting connections and close open streams; cancel running
+    /// renders and release their jobs to `queued` in the store (they run again after a
+    /// restart, or on another node); join the workers; close the database; return.
+    pub async fn serve(
+        self,
+        listener: tokio::net::TcpListener,
+        shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+    ) -> anyhow::Result<()> {
+        let Self {
+            config,
+            jobs,
+            metrics,
+        } = self;
+        let stop = tokio_util::sync::CancellationToken::new();
+        let state = app_state(&config, &jobs, metrics, &stop);
+        tokio::spawn(retention::run(
+            jobs.clone(),
+            config.data_dir.join("jobs"),
+            config.retention,
+            stop.clone(),
+        ));
+        let app = http::router(state);
+        let stop2 = stop.clone();
+        let jobs2 = jobs.clone();
+        tokio::spawn(async move {
+            shutdown.await;
+            stop2.cancel();
+            jobs2.stop_rendering();
+        });
+        serve(
+            listener,
+            app,
+            &stop,
+            config.header_timeout,
+            config.client_stall,
+        )
+        .await;
+        // Never leave workers rendering behind us.
+        stop.cancel();
+        jobs.shutdown().await;
+        Ok(())
+    }
+
+    /// Stops the workers without having served (the listener could not be had).
+    pub async fn abandon(self) {
+        self.jobs.shutdown().await;
+    }
 }
 
 /// What the HTTP handlers share, from the configuration.
@@ -273,51 +314,77 @@ pub fn default_node_name() -> String {
     format!("{host}-{}", std::process::id())
 }
 
-/// A worker node (`glimpse worker`, cluster.md): renders jobs claimed from the shared
-/// database, one at a time, until `shutdown` resolves; then releases its job (to
-/// `queued`, for another worker) and returns. With `metrics` (`--metrics-addr`) it
-/// serves its own `/healthz` and `/metrics` there, under the same rules as an API node's
-/// (`http::node_router`); no other HTTP.
-pub async fn run_worker(
-    config: Config,
-    metrics: Option<tokio::net::TcpListener>,
-    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
-) -> anyhow::Result<()> {
+/// A worker node (`glimpse worker`, cluster.md), started: its store open and its one
+/// worker running, before its `--metrics-addr` is bound (see [`Started`]).
+pub async fn start_worker(config: Config) -> anyhow::Result<Started> {
     let Some(database @ store::Database::Postgres(_)) = config.database.clone() else {
         anyhow::bail!("glimpse worker needs a shared database: --database postgres://USER@HOST/DB (the embedded SQLite store has one node, `glimpse serve`, which renders its own jobs)");
     };
     let store = store::Store::connect(&database, &config.data_dir)
         .await
         .map_err(|e| anyhow::anyhow!("cannot open the job store {}: {e}", database.display()))?;
-    let counters = Arc::new(metrics::Metrics::default());
+    let metrics = Arc::new(metrics::Metrics::default());
     let jobs = jobs::Jobs::start(
         store,
         node(&config, 1),
         config.limits,
         config.queue_capacity,
         config.job_timeout,
-        Arc::clone(&counters),
+        Arc::clone(&metrics),
     )
     .await
     .map_err(|e| anyhow::anyhow!("cannot start the worker: {e}"))?;
-    let stop = tokio_util::sync::CancellationToken::new();
-    let served = metrics.map(|listener| {
-        let app = http::node_router(app_state(&config, &jobs, counters, &stop));
-        let (stop, header, stall) = (stop.clone(), config.header_timeout, config.client_stall);
-        tokio::spawn(async move { serve(listener, app, &stop, header, stall).await })
-    });
     tracing::info!(
         name = jobs.node_name().unwrap_or_default(),
         "worker started on {}",
         database.display()
     );
-    shutdown.await;
-    stop.cancel();
-    if let Some(served) = served {
-        let _ = served.await;
+    Ok(Started {
+        config,
+        jobs,
+        metrics,
+    })
+}
+
+/// A worker node: renders jobs claimed from the shared database, one at a time, until
+/// `shutdown` resolves; then releases its job (to `queued`, for another worker) and
+/// returns. With `metrics` (`--metrics-addr`) it serves its own `/healthz` and
+/// `/metrics` there, under the same rules as an API node's (`http::node_router`); no
+/// other HTTP.
+pub async fn run_worker(
+    config: Config,
+    metrics: Option<tokio::net::TcpListener>,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
+    start_worker(config).await?.work(metrics, shutdown).await
+}
+
+impl Started {
+    /// [`run_worker`] once started.
+    pub async fn work(
+        self,
+        metrics: Option<tokio::net::TcpListener>,
+        shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+    ) -> anyhow::Result<()> {
+        let Self {
+            config,
+            jobs,
+            metrics: counters,
+        } = self;
+        let stop = tokio_util::sync::CancellationToken::new();
+        let served = metrics.map(|listener| {
+            let app = http::node_router(app_state(&config, &jobs, counters, &stop));
+            let (stop, header, stall) = (stop.clone(), config.header_timeout, config.client_stall);
+            tokio::spawn(async move { serve(listener, app, &stop, header, stall).await })
+        });
+        shutdown.await;
+        stop.cancel();
+        if let Some(served) = served {
+            let _ = served.await;
+        }
+        jobs.shutdown().await;
+        Ok(())
     }
-    jobs.shutdown().await;
-    Ok(())
 }
 
 /// `axum::serve` with timeouts, which it does not offer: hyper HTTP/1 connections (with

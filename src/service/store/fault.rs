@@ -11,7 +11,9 @@
 //! atomic load here.
 //!
 //! Only the service's own writes are listed: the store's reads never fail here. The
-//! claim is `store.start`, its end `store.finish`, a release `store.requeue`.
+//! claim is `store.start`, its end `store.finish`, a release `store.requeue`. On SQLite
+//! the claim's fault strikes inside its transaction and fails it as `SQLITE_FULL` does
+//! (the transaction already rolled back when the error comes: `lease::claim_sqlite`).
 
 use std::path::PathBuf;
 use std::sync::OnceLock;

@@ -49,6 +49,102 @@ pub enum StoreError {
     Io(#[from] std::io::Error),
     #[error("corrupt record: {0}")]
     Corrupt(String),
+    /// A finished job's record says it has a frame, but its image file is gone.
+    #[error("the files of job {0} are missing: {path} is gone (removed outside the server?)", path = .1.display())]
+    FilesMissing(Uuid, PathBuf),
+}
+
+/// What kind of failure a [`StoreError`] is, for the answer a client gets: a database
+/// this node cannot reach (PostgreSQL down or cut off) is not a disk that refuses a write,
+/// and telling a client "is the disk full?" for the first sends its operator to the wrong
+/// machine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Failure {
+    /// No connection to the database: refused, reset, timed out, the server shutting
+    /// down, the database gone or the login refused (SQLSTATE classes 08 and 28, 57P01–
+    /// 57P03, 3D000).
+    Unreachable,
+    /// A finished job's files are gone, for good (410).
+    FilesMissing,
+    /// The disk refused a write: full (`ENOSPC`, `SQLITE_FULL`) or read-only.
+    Full,
+    /// Anything else the database or the file system said.
+    Other,
+    /// A record that cannot be read (a bug or a damaged database, not a passing fault).
+    Corrupt,
+}
+
+impl StoreError {
+    #[must_use]
+    pub fn failure(&self) -> Failure {
+        match self {
+            Self::Db(e) => db_failure(e),
+            Self::Migrate(sqlx::migrate::MigrateError::Execute(e)) => db_failure(e),
+            Self::Migrate(_) => Failure::Other,
+            Self::Io(e) => io_failure(e),
+            Self::Corrupt(_) => Failure::Corrupt,
+            Self::FilesMissing(..) => Failure::FilesMissing,
+        }
+    }
+}
+
+fn io_failure(e: &std::io::Error) -> Failure {
+    use std::io::ErrorKind as K;
+    match e.kind() {
+        K::StorageFull | K::ReadOnlyFilesystem | K::QuotaExceeded => Failure::Full,
+        K::ConnectionRefused
+        | K::ConnectionReset
+        | K::ConnectionAborted
+        | K::NotConnected
+        | K::BrokenPipe
+        | K::TimedOut
+        | K::UnexpectedEof
+        | K::HostUnreachable
+        | K::NetworkUnreachable
+        | K::AddrNotAvailable => Failure::Unreachable,
+        _ => Failure::Other,
+    }
+}
+
+fn db_failure(e: &sqlx::Error) -> Failure {
+    match e {
+        sqlx::Error::PoolTimedOut
+        | sqlx::Error::PoolClosed
+        | sqlx::Error::WorkerCrashed
+        | sqlx::Error::Tls(_)
+        | sqlx::Error::Protocol(_) => Failure::Unreachable,
+        sqlx::Error::Io(io) => match io_failure(io) {
+            // A socket's other errors are the connection's too.
+            Failure::Other => Failure::Unreachable,
+            f => f,
+        },
+        sqlx::Error::Database(d) => {
+            let code = d.code().unwrap_or_default();
+            match &*code {
+                // SQLite: SQLITE_FULL, SQLITE_READONLY (and their extended codes' low byte).
+                "13" | "8" => Failure::Full,
+                c if c
+                    .parse::<i32>()
+                    .is_ok_and(|n| n & 0xff == 13 || n & 0xff == 8) =>
+                {
+                    Failure::Full
+                }
+                // PostgreSQL: disk_full, out of space for a table.
+                "53100" => Failure::Full,
+                // Connection exceptions, the server shutting down or starting, and a
+                // connection refused at its start (the database is gone, the login
+                // refused): no statement got through.
+                c if c.starts_with("08")
+                    || c.starts_with("28")
+                    || matches!(c, "57P01" | "57P02" | "57P03" | "3D000") =>
+                {
+                    Failure::Unreachable
+                }
+                _ => Failure::Other,
+            }
+        }
+        _ => Failure::Other,
+    }
 }
 
 /// At most 64 characters of `s` (with "…" when cut), for messages that quote stored or
@@ -120,6 +216,11 @@ impl Database {
             Self::Postgres(url) => postgres::without_password(url),
         }
     }
+}
+
+/// Whether `conn` is counted inside a transaction (for the pools' release check).
+fn in_transaction<C: sqlx::Connection>(conn: &C) -> bool {
+    conn.is_in_transaction()
 }
 
 #[derive(Clone, Debug)]
@@ -425,6 +526,22 @@ impl Store {
         }
     }
 
+    /// `Err(FilesMissing)` if `job` is finished with a frame but its image file is gone
+    /// (removed by hand, a data folder restored without its `jobs/`): said and logged,
+    /// rather than answered as a frame without an image layer. A job that a `DELETE` is
+    /// removing is the caller's to tell apart.
+    pub async fn check_files(&self, job: &JobRecord) -> Result<(), StoreError> {
+        if !job.state.is_finished() || !job.has_frame {
+            return Ok(());
+        }
+        let image = self.layer_path(job, Layer::Image, false);
+        if tokio::fs::try_exists(&image).await? {
+            return Ok(());
+        }
+        tracing::warn!(id = %job.id, path = %image.display(), "a finished job's files are missing");
+        Err(StoreError::FilesMissing(job.id, image))
+    }
+
     /// Path of a stored layer's file of `job`: its PNG, or with `exr` the image's EXR.
     #[must_use]
     pub fn layer_path(&self, job: &JobRecord, layer: Layer, exr: bool) -> PathBuf {
@@ -461,6 +578,35 @@ impl Store {
 
 #[cfg(test)]
 mod tests {
+    use super::{Failure, StoreError};
+
+    #[test]
+    fn a_connection_failure_is_told_from_a_full_disk() {
+        let io = |k| StoreError::Io(std::io::Error::from(k));
+        assert_eq!(io(std::io::ErrorKind::StorageFull).failure(), Failure::Full);
+        let enospc = std::io::Error::from_raw_os_error(28);
+        assert_eq!(StoreError::Io(enospc).failure(), Failure::Full);
+        assert_eq!(
+            StoreError::Db(sqlx::Error::PoolTimedOut).failure(),
+            Failure::Unreachable
+        );
+        let refused = std::io::Error::from(std::io::ErrorKind::ConnectionRefused);
+        assert_eq!(
+            StoreError::Db(sqlx::Error::Io(refused)).failure(),
+            Failure::Unreachable
+        );
+        assert_eq!(
+            io(std::io::ErrorKind::PermissionDenied).failure(),
+            Failure::Other
+        );
+        assert_eq!(
+            StoreError::Corrupt(String::new()).failure(),
+            Failure::Corrupt
+        );
+        let gone = StoreError::FilesMissing(uuid::Uuid::nil(), "x/image.png".into());
+        assert_eq!(gone.failure(), Failure::FilesMissing);
+    }
+
     #[test]
     fn timestamps_have_fixed_width_so_string_order_is_time_order() {
         let t = time::macros::datetime!(2026-11-25 21:52:06.8 UTC);

@@ -21,6 +21,9 @@ pub(super) async fn open(dir: &Path) -> Result<SqlitePool, StoreError> {
         .foreign_keys(true);
     let pool = SqlitePoolOptions::new()
         .max_connections(4)
+        // A connection still inside a transaction when it comes back (its ROLLBACK
+        // failed: see `lease::claim_sqlite`) is closed, never handed out again.
+        .after_release(|conn, _| Box::pin(async move { Ok(!super::in_transaction(conn)) }))
         .connect_with(opts)
         .await?;
     refuse_foreign(&pool).await?;
