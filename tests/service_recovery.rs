@@ -13,6 +13,7 @@
 mod common;
 
 use common::{free_port, submit, wait_state, Proc};
+use futures_util::StreamExt;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -486,6 +487,26 @@ async fn a_job_whose_files_were_removed_says_so() {
             "the server's path: {message}"
         );
     }
+    // Its stream says so too, in the same shape.
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/v1/jobs/{id}/stream"))
+            .await
+            .unwrap();
+    let error = loop {
+        let m = tokio::time::timeout(Duration::from_secs(10), ws.next())
+            .await
+            .expect("the stream answers")
+            .expect("the stream sends a message")
+            .unwrap();
+        if let tokio_tungstenite::tungstenite::Message::Text(t) = m {
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["type"] != "state" {
+                break v;
+            }
+        }
+    };
+    assert_eq!(error["type"], "error", "{error}");
+    assert_eq!(error["error"]["code"], "files_missing", "{error}");
     // Logged, naming the job and the missing file.
     let text = std::fs::read_to_string(&log).unwrap();
     let line = text

@@ -667,7 +667,12 @@ impl Jobs {
             return Ok(Watch::Live(relay::follow(&self.inner, job)));
         }
         let frame = if job.has_frame {
-            self.stored_frame(&job).await
+            let frame = self.stored_frame(&job).await;
+            if frame.is_none() {
+                // A frame it had is gone: say so rather than stream a job without one.
+                self.inner.store.check_files(&job).await?;
+            }
+            frame
         } else {
             None
         };

@@ -269,7 +269,16 @@ fn final_message(job: &JobRecord) -> StreamMessage<'_> {
 }
 
 async fn serve(tx: &mut Tx, st: &AppState, id: Uuid) -> Result<(), StreamError> {
-    let (job, frame) = match st.jobs.watch(id).await.map_err(other)? {
+    let watch = match st.jobs.watch(id).await {
+        Ok(w) => w,
+        // The store cannot serve it (unreachable, or the job's files are gone): the
+        // stream says why, in the error shape of every other answer.
+        Err(e) => {
+            let error = ApiError::from(e).detail();
+            return send_json(tx, &StreamMessage::Error { error, job: None }).await;
+        }
+    };
+    let (job, frame) = match watch {
         Watch::Live(wrx) => return follow(tx, st, id, wrx).await,
         Watch::Stored(job, frame) => (job, frame),
         Watch::NotFound => {
