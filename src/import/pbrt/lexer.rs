@@ -95,12 +95,6 @@ impl<'t> Lexer<'t> {
         Ok(self.peeked.as_ref())
     }
 
-    /// Where the text ends (for an error about something missing at the end).
-    #[must_use]
-    pub fn end_pos(&mut self) -> Pos {
-        self.pos_at(self.text.len())
-    }
-
     fn pos_at(&mut self, i: usize) -> Pos {
         self.mark_col += self.text[self.mark..i].chars().count();
         self.mark = i;
@@ -239,5 +233,18 @@ mod tests {
         assert!(e.to_string().contains("not a finite"), "{e}");
         let e = tokenize("s.pbrt", "@").unwrap_err();
         assert!(e.to_string().contains("unexpected"), "{e}");
+    }
+
+    #[test]
+    fn the_lexer_reads_one_token_at_a_time() {
+        let mut lx = Lexer::new("a.pbrt", "Shape # c\n [ 1 2 ] @");
+        assert_eq!(lx.peek().unwrap().unwrap().0, Tok::Word("Shape".into()));
+        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Word("Shape".into()));
+        assert_eq!(lx.next().unwrap().unwrap().1.to_string(), "a.pbrt:2:2");
+        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Num(1.0));
+        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Num(2.0));
+        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Close);
+        // Nothing past a token is read before it is asked for.
+        assert!(lx.next().unwrap_err().to_string().contains("a.pbrt:2:10"));
     }
 }

@@ -251,3 +251,47 @@ impl List<'_> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cap3(_: &str, _: &Params) -> Cap {
+        Cap {
+            max: 3,
+            why: "a test's limit".into(),
+        }
+    }
+
+    #[test]
+    fn a_list_is_refused_at_its_first_value_past_the_cap() {
+        // The bad token after the fourth value is never read.
+        let mut lx = Lexer::new("p.pbrt", "\"float x\" [1 2 3 4 @]");
+        let e = parse(&mut lx, &cap3).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "p.pbrt:1:18");
+        assert!(
+            e.message.contains("more than 3 values (a test's limit)"),
+            "{e}"
+        );
+        let mut lx = Lexer::new("p.pbrt", "\"float x\" [1 2 3] \"string s\" \"a\" Shape");
+        let p = parse(&mut lx, &cap3).unwrap();
+        assert_eq!(p.nums("x").unwrap().unwrap().0, [1.0, 2.0, 3.0]);
+        assert_eq!(p.string("s").unwrap().unwrap().0, "a");
+        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Word("Shape".into()));
+    }
+
+    #[test]
+    fn values_are_typed_as_they_are_read() {
+        let err = |text: &str| {
+            let mut lx = Lexer::new("p.pbrt", text);
+            parse(&mut lx, &cap3).unwrap_err().to_string()
+        };
+        assert!(err("\"integer n\" [1.5]").contains("must hold integers"));
+        assert!(err("\"float n\" [\"a\"]").contains("p.pbrt:1:12"));
+        assert!(err("\"bool b\" [1]").contains("true or false"));
+        assert!(err("\"spectrum s\" [\"a\" 1]").contains("must hold strings"));
+        assert!(err("\"wat w\" 1").contains("unknown parameter type `wat`"));
+        assert!(err("\"float n\" [1").contains("`]` is missing"));
+    }
+}
