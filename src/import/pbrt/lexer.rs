@@ -80,7 +80,7 @@ impl<'t> Lexer<'t> {
     }
 
     /// The next token, `None` at the end of the text.
-    pub fn next(&mut self) -> Result<Option<(Tok, Pos)>, ImportError> {
+    pub fn take(&mut self) -> Result<Option<(Tok, Pos)>, ImportError> {
         match self.peeked.take() {
             Some(t) => Ok(Some(t)),
             None => self.scan(),
@@ -190,7 +190,7 @@ impl<'t> Lexer<'t> {
 pub fn tokenize(file: &str, text: &str) -> Result<Vec<(Tok, Pos)>, ImportError> {
     let mut lx = Lexer::new(file, text);
     let mut out = Vec::new();
-    while let Some(t) = lx.next()? {
+    while let Some(t) = lx.take()? {
         out.push(t);
     }
     Ok(out)
@@ -239,12 +239,12 @@ mod tests {
     fn the_lexer_reads_one_token_at_a_time() {
         let mut lx = Lexer::new("a.pbrt", "Shape # c\n [ 1 2 ] @");
         assert_eq!(lx.peek().unwrap().unwrap().0, Tok::Word("Shape".into()));
-        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Word("Shape".into()));
-        assert_eq!(lx.next().unwrap().unwrap().1.to_string(), "a.pbrt:2:2");
-        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Num(1.0));
-        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Num(2.0));
-        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Close);
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Word("Shape".into()));
+        assert_eq!(lx.take().unwrap().unwrap().1.to_string(), "a.pbrt:2:2");
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Num(1.0));
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Num(2.0));
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Close);
         // Nothing past a token is read before it is asked for.
-        assert!(lx.next().unwrap_err().to_string().contains("a.pbrt:2:10"));
+        assert!(lx.take().unwrap_err().to_string().contains("a.pbrt:2:10"));
     }
 }

@@ -205,7 +205,7 @@ impl Importer<'_> {
 
     fn run(&mut self, file: &str, text: &str, depth: usize) -> Result<(), ImportError> {
         let mut lx = Lexer::new(file, text);
-        while let Some((tok, pos)) = lx.next()? {
+        while let Some((tok, pos)) = lx.take()? {
             let Tok::Word(dir) = tok else {
                 return Err(pos.error(format!("expected a directive, got {}", tok.describe())));
             };
@@ -219,14 +219,14 @@ impl Importer<'_> {
     fn numbers(lx: &mut Lexer, n: usize, pos: &Pos, dir: &str) -> Result<Vec<f64>, ImportError> {
         let bracket = matches!(lx.peek()?, Some((Tok::Open, _)));
         if bracket {
-            lx.next()?;
+            lx.take()?;
         }
         let mut out = Vec::with_capacity(n);
         while out.len() < n {
             match lx.peek()? {
                 Some((Tok::Num(v), _)) => {
                     out.push(*v);
-                    lx.next()?;
+                    lx.take()?;
                 }
                 _ => return Err(pos.error(format!("`{dir}` takes {n} numbers, got {}", out.len()))),
             }
@@ -234,7 +234,7 @@ impl Importer<'_> {
         if bracket {
             match lx.peek()? {
                 Some((Tok::Close, _)) => {
-                    lx.next()?;
+                    lx.take()?;
                 }
                 _ => return Err(pos.error(format!("`{dir}`: `]` expected after {n} numbers"))),
             }
@@ -244,7 +244,7 @@ impl Importer<'_> {
 
     fn string(lx: &mut Lexer, pos: &Pos, dir: &str) -> Result<String, ImportError> {
         match lx.peek()? {
-            Some((Tok::Str(_), _)) => match lx.next()? {
+            Some((Tok::Str(_), _)) => match lx.take()? {
                 Some((Tok::Str(s), _)) => Ok(s),
                 _ => Err(pos.error(format!("`{dir}` needs a quoted name"))),
             },
@@ -458,7 +458,7 @@ impl Importer<'_> {
                             format!("`{dir}` holds more than {MAX_LIST} values"),
                         ));
                     }
-                    lx.next()?;
+                    lx.take()?;
                 }
                 self.warn(pos, format!("`{dir}` is not modelled: ignored"));
             }
@@ -1472,10 +1472,8 @@ fn drop_unused_points(
         return (positions, normals, uvs, indices);
     }
     let mut new_index = vec![u32::MAX; positions.len()];
-    let mut next = 0u32;
-    for (k, _) in used.iter().enumerate().filter(|(_, &u)| u) {
-        new_index[k] = next;
-        next += 1;
+    for (next, (k, _)) in used.iter().enumerate().filter(|(_, &u)| u).enumerate() {
+        new_index[k] = next as u32;
     }
     let keep = |k: &usize| used[*k];
     let pick = |v: Vec<DVec3>| -> Vec<DVec3> {

@@ -127,7 +127,7 @@ impl Kind {
 pub fn parse(lx: &mut Lexer, cap: &dyn Fn(&str, &Params) -> Cap) -> Result<Params, ImportError> {
     let mut out = Params::default();
     while let Some((Tok::Str(_), _)) = lx.peek()? {
-        let Some((Tok::Str(decl), pos)) = lx.next()? else {
+        let Some((Tok::Str(decl), pos)) = lx.take()? else {
             break;
         };
         let mut words = decl.split_whitespace();
@@ -147,9 +147,9 @@ pub fn parse(lx: &mut Lexer, cap: &dyn Fn(&str, &Params) -> Cap) -> Result<Param
             values: None,
         };
         if let Some((Tok::Open, _)) = lx.peek()? {
-            lx.next()?;
+            lx.take()?;
             loop {
-                match lx.next()? {
+                match lx.take()? {
                     Some((Tok::Close, _)) => break,
                     Some((Tok::Open, p)) => return Err(p.error("unexpected `[` in a list")),
                     Some((t, p)) => list.push(t, &p)?,
@@ -157,7 +157,7 @@ pub fn parse(lx: &mut Lexer, cap: &dyn Fn(&str, &Params) -> Cap) -> Result<Param
                 }
             }
         } else if let Some((Tok::Num(_) | Tok::Str(_) | Tok::Word(_), _)) = lx.peek()? {
-            let Some((t, p)) = lx.next()? else {
+            let Some((t, p)) = lx.take()? else {
                 break;
             };
             list.push(t, &p)?;
@@ -278,7 +278,7 @@ mod tests {
         let p = parse(&mut lx, &cap3).unwrap();
         assert_eq!(p.nums("x").unwrap().unwrap().0, [1.0, 2.0, 3.0]);
         assert_eq!(p.string("s").unwrap().unwrap().0, "a");
-        assert_eq!(lx.next().unwrap().unwrap().0, Tok::Word("Shape".into()));
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Word("Shape".into()));
     }
 
     #[test]
