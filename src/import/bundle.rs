@@ -11,6 +11,11 @@ use std::collections::BTreeMap;
 
 use super::FileSource;
 
+/// The most entries an uploaded bundle may have.
+pub const MAX_ENTRIES: usize = 10_000;
+/// The most bytes an uploaded bundle may unpack to, all entries together (256 MiB).
+pub const MAX_UNPACKED: u64 = 1 << 28;
+
 /// Bounds on a bundle, checked from its directory.
 #[derive(Clone, Copy, Debug)]
 pub struct BundleLimits {
@@ -51,31 +56,7 @@ fn u32_at(b: &[u8], i: usize) -> Option<u64> {
 impl Bundle {
     /// Reads the bundle in `zip`.
     pub fn parse(zip: &[u8], limits: &BundleLimits) -> Result<Self, BundleError> {
-        // End of central directory: 22 bytes plus a comment of up to 64 KiB, at the end.
-        let from = zip.len().saturating_sub(22 + 65535);
-        let eocd = (from..zip.len().saturating_sub(21))
-            .rev()
-            .find(|&i| zip[i..i + 4] == [0x50, 0x4b, 0x05, 0x06])
-            .ok_or_else(|| bad("not a zip file (no end of central directory)"))?;
-        let count = u16_at(zip, eocd + 10).unwrap_or(0);
-        let dir_len = u32_at(zip, eocd + 12).unwrap_or(0);
-        let dir_at = u32_at(zip, eocd + 16).unwrap_or(0);
-        if count == 0xffff || dir_at == 0xffff_ffff {
-            return Err(bad("zip64 bundles are not supported"));
-        }
-        if count > limits.max_entries {
-            return Err(BundleError {
-                message: format!(
-                    "the bundle has {count} entries, more than the limit of {}",
-                    limits.max_entries
-                ),
-                too_large: true,
-            });
-        }
-        let dir = zip
-            .get(dir_at as usize..(dir_at + dir_len) as usize)
-            .ok_or_else(|| bad("the central directory lies outside the file (truncated?)"))?;
-        let entries = directory(dir, count)?;
+        let entries = entries(zip, limits.max_entries)?;
         let total: u64 = entries.iter().map(|e| e.size).sum();
         if total > limits.max_unpacked {
             return Err(BundleError {
@@ -139,6 +120,43 @@ impl FileSource for Bundle {
         }
         Ok(data.clone())
     }
+}
+
+/// What the bundle in `zip` says it unpacks to, all entries together (from its central
+/// directory, nothing inflated); `None` if it is not a zip Glimpse reads (its import will
+/// say why). The service charges this against its validation budget before importing.
+#[must_use]
+pub fn unpacked_size(zip: &[u8]) -> Option<u64> {
+    let entries = entries(zip, MAX_ENTRIES).ok()?;
+    Some(entries.iter().map(|e| e.size).sum())
+}
+
+/// The entries of the central directory, at most `max_entries`.
+fn entries(zip: &[u8], max_entries: usize) -> Result<Vec<Entry>, BundleError> {
+    // End of central directory: 22 bytes plus a comment of up to 64 KiB, at the end.
+    let from = zip.len().saturating_sub(22 + 65535);
+    let eocd = (from..zip.len().saturating_sub(21))
+        .rev()
+        .find(|&i| zip[i..i + 4] == [0x50, 0x4b, 0x05, 0x06])
+        .ok_or_else(|| bad("not a zip file (no end of central directory)"))?;
+    let count = u16_at(zip, eocd + 10).unwrap_or(0);
+    let dir_len = u32_at(zip, eocd + 12).unwrap_or(0);
+    let dir_at = u32_at(zip, eocd + 16).unwrap_or(0);
+    if count == 0xffff || dir_at == 0xffff_ffff {
+        return Err(bad("zip64 bundles are not supported"));
+    }
+    if count > max_entries {
+        return Err(BundleError {
+            message: format!(
+                "the bundle has {count} entries, more than the limit of {max_entries}"
+            ),
+            too_large: true,
+        });
+    }
+    let dir = zip
+        .get(dir_at as usize..(dir_at + dir_len) as usize)
+        .ok_or_else(|| bad("the central directory lies outside the file (truncated?)"))?;
+    directory(dir, count)
 }
 
 /// A name inside the bundle with `.` and `..` resolved; absolute names and names that

@@ -210,8 +210,21 @@ impl Gltf<'_> {
     }
 
     fn load_buffers(&mut self, bin: Option<&[u8]>) -> Result<(), ImportError> {
+        // Every buffer is held at once, and many may name the same file (or the GLB's
+        // binary chunk): their bytes together are bounded as a pbrt scene's includes are.
+        let mut total = 0u64;
         for b in self.doc.buffers() {
             let p = format!("/buffers/{}", b.index());
+            total = total.saturating_add(b.length() as u64);
+            if total > self.limits.max_read_bytes {
+                return Err(ImportError::limit(
+                    format!("{}: {p}/byteLength", self.name),
+                    format!(
+                        "the buffers add up to more than the limit of {} bytes",
+                        self.limits.max_read_bytes
+                    ),
+                ));
+            }
             let data = match b.source() {
                 gltf::buffer::Source::Bin => bin
                     .ok_or_else(|| self.at(&p, "refers to the GLB binary chunk, which is missing"))?
@@ -792,6 +805,27 @@ mod tests {
         out.extend(0x4E4F_534Au32.to_le_bytes());
         out.extend(j);
         out
+    }
+
+    #[test]
+    fn buffers_naming_one_file_many_times_are_bounded_together() {
+        let j = with_uri(3, None, "");
+        let one = r#"{"byteLength":42,"uri":"b.bin"}"#;
+        let many = vec![one; 20].join(",");
+        let j = j.replace(r#""buffers":[{"#, &format!(r#""buffers":[{many},{{"#));
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("b.bin"), [0u8; 42]).unwrap();
+        let src = DirSource {
+            dir: dir.path().to_path_buf(),
+        };
+        let l = ImportLimits {
+            max_read_bytes: 42 * 10,
+            ..limits()
+        };
+        let e = import("t.gltf", j.as_bytes(), &src, &l).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "t.gltf: /buffers/10/byteLength");
+        assert!(import("t.gltf", j.as_bytes(), &src, &limits()).is_ok());
     }
 
     #[test]

@@ -151,6 +151,20 @@ pub fn parse(bytes: &[u8], max_triangles: usize) -> Result<PlyMesh, String> {
             "the header declares more data ({need} bytes at least) than the file holds ({body_len} bytes)"
         ));
     }
+    // A mesh uses at most three vertices per triangle: more are unused, and reading them
+    // would cost memory for nothing (the importer drops unused points).
+    let max_vertices = (max_triangles as u64)
+        .saturating_mul(3)
+        .saturating_add(4096);
+    if let Some(v) = elements
+        .iter()
+        .find(|e| e.name == "vertex" && e.count > max_vertices)
+    {
+        return Err(format!(
+            "{} vertices are more than the limit of {max_vertices} (three per triangle of the limit of {max_triangles} triangles left, 4096 spare)",
+            v.count
+        ));
+    }
     let mut body = Body {
         bytes,
         at: body_start,
@@ -452,6 +466,18 @@ mod tests {
         q[n - 4..].copy_from_slice(&9i32.to_le_bytes());
         assert!(parse(&q, 10).unwrap_err().contains("out of range"));
         assert!(parse(b"solid x", 10).unwrap_err().contains("end_header"));
+        // More vertices than the triangles left can use (3 each, 4096 spare): refused
+        // from the header, before they are read.
+        let many = format!(
+            "ply\nformat ascii 1.0\nelement vertex 5000\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n{}3 0 1 2\n",
+            "0 0 0\n".repeat(5000)
+        );
+        let e = parse(many.as_bytes(), 1).unwrap_err();
+        assert!(
+            e.contains("5000 vertices are more than the limit of 4099"),
+            "{e}"
+        );
+        assert!(parse(many.as_bytes(), 400).is_ok());
         assert!(parse(
             b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1 2",
             10

@@ -123,7 +123,9 @@ pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
 /// a scene peaks at ~26× its body (an 8 MiB mesh: ~210 MB), so 24 MiB of bodies in flight
 /// is ~650 MB at most; further submissions wait for their turn before their body is read.
 /// Measured before: 48 concurrent 8 MiB submissions held 4.8 GB. A body larger than the
-/// budget (with `--max-body` raised beyond it) waits for the whole budget.
+/// budget (with `--max-body` raised beyond it) waits for the whole budget. A zip upload
+/// is charged what its directory says it unpacks to besides its body (a 250 KB zip can
+/// hold 250 MiB), so a bundle larger than the budget is imported alone.
 pub const VALIDATION_BUDGET: usize = 24 << 20;
 /// 20 s without reading a byte: a live viewer on a poor link still takes something in
 /// that time (a 64 KiB fragment at 26 kbit/s); a client that has stopped reading is cut

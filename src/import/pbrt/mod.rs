@@ -23,8 +23,8 @@ use std::collections::{BTreeMap, HashMap};
 
 use glam::{DMat3, DMat4, DVec3, DVec4};
 
-use self::lexer::{Pos, Tok};
-use self::params::{Params, Values};
+use self::lexer::{Lexer, Pos, Tok};
+use self::params::{Cap, Params, Values};
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
@@ -35,6 +35,18 @@ use crate::scene::doc::{
 
 /// Includes may nest this deep (a file including itself is refused here).
 const MAX_INCLUDE_DEPTH: usize = 16;
+
+/// The most values one parameter may hold outside a mesh's own lists (a camera, a light, a
+/// material, a spectrum's wavelength/value pairs need a few dozen).
+const MAX_LIST: usize = 1 << 16;
+
+/// The cap of a parameter outside a shape.
+fn list_cap(_name: &str, _so_far: &Params) -> Cap {
+    Cap {
+        max: MAX_LIST,
+        why: format!("a parameter outside a mesh holds at most {MAX_LIST}"),
+    }
+}
 
 /// Complex refractive indices (η, k) of pbrt-v4's named metal spectra as linear sRGB
 /// triples. pbrt-v4 keeps the measured spectra; Glimpse renders in RGB, so it uses the
@@ -133,7 +145,11 @@ struct Importer<'a> {
     /// Lights in pbrt's world, before any mirroring: (position, direction).
     light_frames: Vec<(Option<DVec3>, Option<DVec3>)>,
     triangles: usize,
+    /// Shapes read, inside object definitions too.
+    shapes: usize,
     files_opened: usize,
+    /// Bytes of every file read so far ([`ImportLimits::max_read_bytes`]).
+    read_bytes: u64,
     warnings: Vec<String>,
 }
 
@@ -169,7 +185,9 @@ pub fn import(
         lights: Vec::new(),
         light_frames: Vec::new(),
         triangles: 0,
+        shapes: 0,
         files_opened: 0,
+        read_bytes: text.len() as u64,
         warnings: Vec::new(),
     };
     im.run(name, text, 0)?;
@@ -186,60 +204,50 @@ impl Importer<'_> {
     }
 
     fn run(&mut self, file: &str, text: &str, depth: usize) -> Result<(), ImportError> {
-        let toks = lexer::tokenize(file, text)?;
-        let mut at = 0;
-        while let Some((tok, pos)) = toks.get(at) {
-            at += 1;
+        let mut lx = Lexer::new(file, text);
+        while let Some((tok, pos)) = lx.take()? {
             let Tok::Word(dir) = tok else {
                 return Err(pos.error(format!("expected a directive, got {}", tok.describe())));
             };
-            self.directive(dir, pos, &toks, &mut at, depth)?;
+            self.directive(&dir, &pos, &mut lx, depth)?;
+            self.check_counts(&pos)?;
         }
         Ok(())
     }
 
     /// `n` numbers, bare or in brackets.
-    fn numbers(
-        toks: &[(Tok, Pos)],
-        at: &mut usize,
-        n: usize,
-        pos: &Pos,
-        dir: &str,
-    ) -> Result<Vec<f64>, ImportError> {
-        let bracket = matches!(toks.get(*at), Some((Tok::Open, _)));
+    fn numbers(lx: &mut Lexer, n: usize, pos: &Pos, dir: &str) -> Result<Vec<f64>, ImportError> {
+        let bracket = matches!(lx.peek()?, Some((Tok::Open, _)));
         if bracket {
-            *at += 1;
+            lx.take()?;
         }
         let mut out = Vec::with_capacity(n);
         while out.len() < n {
-            match toks.get(*at) {
+            match lx.peek()? {
                 Some((Tok::Num(v), _)) => {
                     out.push(*v);
-                    *at += 1;
+                    lx.take()?;
                 }
                 _ => return Err(pos.error(format!("`{dir}` takes {n} numbers, got {}", out.len()))),
             }
         }
         if bracket {
-            match toks.get(*at) {
-                Some((Tok::Close, _)) => *at += 1,
+            match lx.peek()? {
+                Some((Tok::Close, _)) => {
+                    lx.take()?;
+                }
                 _ => return Err(pos.error(format!("`{dir}`: `]` expected after {n} numbers"))),
             }
         }
         Ok(out)
     }
 
-    fn string(
-        toks: &[(Tok, Pos)],
-        at: &mut usize,
-        pos: &Pos,
-        dir: &str,
-    ) -> Result<String, ImportError> {
-        match toks.get(*at) {
-            Some((Tok::Str(s), _)) => {
-                *at += 1;
-                Ok(s.clone())
-            }
+    fn string(lx: &mut Lexer, pos: &Pos, dir: &str) -> Result<String, ImportError> {
+        match lx.peek()? {
+            Some((Tok::Str(_), _)) => match lx.take()? {
+                Some((Tok::Str(s), _)) => Ok(s),
+                _ => Err(pos.error(format!("`{dir}` needs a quoted name"))),
+            },
             _ => Err(pos.error(format!("`{dir}` needs a quoted name"))),
         }
     }
@@ -248,30 +256,39 @@ impl Importer<'_> {
         &mut self,
         dir: &str,
         pos: &Pos,
-        toks: &[(Tok, Pos)],
-        at: &mut usize,
+        lx: &mut Lexer,
         depth: usize,
     ) -> Result<(), ImportError> {
         match dir {
             "Identity" => self.state.ctm = DMat4::IDENTITY,
             "Translate" => {
-                let v = Self::numbers(toks, at, 3, pos, dir)?;
-                self.concat(DMat4::from_translation(DVec3::new(v[0], v[1], v[2])));
+                let v = Self::numbers(lx, 3, pos, dir)?;
+                self.concat(
+                    DMat4::from_translation(DVec3::new(v[0], v[1], v[2])),
+                    pos,
+                    dir,
+                )?;
             }
             "Scale" => {
-                let v = Self::numbers(toks, at, 3, pos, dir)?;
-                self.concat(DMat4::from_scale(DVec3::new(v[0], v[1], v[2])));
+                let v = Self::numbers(lx, 3, pos, dir)?;
+                let m = DMat4::from_scale(DVec3::new(v[0], v[1], v[2]));
+                invertible(
+                    &m,
+                    pos,
+                    &format!("`Scale {} {} {}`", num(v[0]), num(v[1]), num(v[2])),
+                )?;
+                self.concat(m, pos, dir)?;
             }
             "Rotate" => {
-                let v = Self::numbers(toks, at, 4, pos, dir)?;
+                let v = Self::numbers(lx, 4, pos, dir)?;
                 let axis = DVec3::new(v[1], v[2], v[3]);
                 let axis = axis
                     .try_normalize()
                     .ok_or_else(|| pos.error("`Rotate` needs a non-zero axis"))?;
-                self.concat(DMat4::from_axis_angle(axis, v[0].to_radians()));
+                self.concat(DMat4::from_axis_angle(axis, v[0].to_radians()), pos, dir)?;
             }
             "LookAt" => {
-                let v = Self::numbers(toks, at, 9, pos, dir)?;
+                let v = Self::numbers(lx, 9, pos, dir)?;
                 let m = look_at(
                     DVec3::new(v[0], v[1], v[2]),
                     DVec3::new(v[3], v[4], v[5]),
@@ -280,26 +297,27 @@ impl Importer<'_> {
                 .ok_or_else(|| {
                     pos.error("`LookAt`: the eye equals the target or `up` is parallel to the view")
                 })?;
-                self.concat(m);
+                self.concat(m, pos, dir)?;
             }
             "Transform" | "ConcatTransform" => {
-                let v = Self::numbers(toks, at, 16, pos, dir)?;
+                let v = Self::numbers(lx, 16, pos, dir)?;
                 let mut a = [0.0; 16];
                 a.copy_from_slice(&v);
                 // The list is pbrt's matrix transposed, i.e. column-major: glam's order.
                 let m = DMat4::from_cols_array(&a);
+                invertible(&m, pos, &format!("the matrix of `{dir}`"))?;
                 if dir == "Transform" {
                     self.state.ctm = m;
                 } else {
-                    self.concat(m);
+                    self.concat(m, pos, dir)?;
                 }
             }
             "CoordinateSystem" => {
-                let n = Self::string(toks, at, pos, dir)?;
+                let n = Self::string(lx, pos, dir)?;
                 self.named_coords.insert(n, self.state.ctm);
             }
             "CoordSysTransform" => {
-                let n = Self::string(toks, at, pos, dir)?;
+                let n = Self::string(lx, pos, dir)?;
                 self.state.ctm = *self
                     .named_coords
                     .get(&n)
@@ -324,7 +342,7 @@ impl Importer<'_> {
                 }
             }
             "Include" | "Import" => {
-                let name = Self::string(toks, at, pos, dir)?;
+                let name = Self::string(lx, pos, dir)?;
                 if depth + 1 > MAX_INCLUDE_DEPTH {
                     return Err(pos.error(format!(
                         "includes nest deeper than {MAX_INCLUDE_DEPTH} (does \"{name}\" include itself?)"
@@ -342,8 +360,8 @@ impl Importer<'_> {
             }
             "WorldEnd" => {}
             "Camera" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 if ty != "perspective" {
                     return Err(pos.error(format!(
                         "camera \"{ty}\" is not supported (Glimpse has a pinhole perspective camera)"
@@ -367,8 +385,8 @@ impl Importer<'_> {
                 self.camera = Some((self.state.ctm, fov));
             }
             "Film" => {
-                let _ = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let _ = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 let w = p.float("xresolution", 1280.0)?;
                 let h = p.float("yresolution", 720.0)?;
                 if !(w >= 1.0 && h >= 1.0) {
@@ -380,8 +398,8 @@ impl Importer<'_> {
                 }
             }
             "Sampler" => {
-                let _ = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let _ = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 let n = p.float("pixelsamples", 16.0)?;
                 if n < 1.0 {
                     return Err(pos.error(format!("pixelsamples must be ≥ 1, got {n}")));
@@ -389,8 +407,8 @@ impl Importer<'_> {
                 self.spp = n as u64;
             }
             "Integrator" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 let d = p.float("maxdepth", 5.0)?;
                 if d < 0.0 {
                     return Err(pos.error(format!("maxdepth must be ≥ 0, got {d}")));
@@ -401,8 +419,8 @@ impl Importer<'_> {
                 }
             }
             "PixelFilter" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let _ = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let _ = params::parse(lx, &list_cap)?;
                 if ty != "box" {
                     self.warn(pos, format!("pixel filter \"{ty}\": Glimpse averages each pixel's samples (a box filter)"));
                 }
@@ -411,32 +429,42 @@ impl Importer<'_> {
                 // Only settings that do not change the picture in RGB (ColorSpace other
                 // than sRGB would, and is refused).
                 if dir == "ColorSpace" {
-                    let cs = Self::string(toks, at, pos, dir)?;
+                    let cs = Self::string(lx, pos, dir)?;
                     if cs != "srgb" {
                         return Err(
                             pos.error(format!("color space \"{cs}\" is not supported (sRGB only)"))
                         );
                     }
                 } else if dir == "Option" {
-                    let _ = params::parse(toks, at)?;
+                    let _ = params::parse(lx, &list_cap)?;
                 } else {
-                    let _ = Self::string(toks, at, pos, dir)?;
-                    let _ = params::parse(toks, at)?;
+                    let _ = Self::string(lx, pos, dir)?;
+                    let _ = params::parse(lx, &list_cap)?;
                 }
             }
             "MakeNamedMedium" | "MediumInterface" | "Attribute" => {
                 // Participating media and attribute defaults are not modelled.
-                while matches!(toks.get(*at), Some((Tok::Str(_), _))) {
-                    let save = *at;
-                    if params::parse(toks, at).is_err() || *at == save {
-                        *at = save + 1;
+                // Their parameters are skipped up to the next directive (a bare word
+                // other than a bool); their numbers count against the list cap too.
+                let mut n = 0usize;
+                while let Some((t, p)) = lx.peek()? {
+                    if matches!(t, Tok::Word(w) if w != "true" && w != "false") {
+                        break;
                     }
+                    n += 1;
+                    if n > MAX_LIST {
+                        return Err(ImportError::limit(
+                            p.to_string(),
+                            format!("`{dir}` holds more than {MAX_LIST} values"),
+                        ));
+                    }
+                    lx.take()?;
                 }
                 self.warn(pos, format!("`{dir}` is not modelled: ignored"));
             }
             "Material" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 self.anonymous += 1;
                 let name = format!("material-{}", self.anonymous);
                 let m = self.material(&ty, &p, pos)?;
@@ -444,8 +472,8 @@ impl Importer<'_> {
                 self.state.material = name;
             }
             "MakeNamedMaterial" => {
-                let name = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let name = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 let ty = p
                     .string("type")?
                     .map(|(t, _)| t.to_string())
@@ -456,7 +484,7 @@ impl Importer<'_> {
                 self.materials.insert(name, m);
             }
             "NamedMaterial" => {
-                let name = Self::string(toks, at, pos, dir)?;
+                let name = Self::string(lx, pos, dir)?;
                 if !self.materials.contains_key(&name) {
                     return Err(pos.error(format!(
                         "unknown material \"{name}\" (not made by MakeNamedMaterial before)"
@@ -465,16 +493,16 @@ impl Importer<'_> {
                 self.state.material = name;
             }
             "Texture" => {
-                let name = Self::string(toks, at, pos, dir)?;
-                let _kind = Self::string(toks, at, pos, dir)?;
-                let class = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let name = Self::string(lx, pos, dir)?;
+                let _kind = Self::string(lx, pos, dir)?;
+                let class = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 let c = self.texture(&name, &class, &p, pos)?;
                 self.textures.insert(name, c);
             }
             "AreaLightSource" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 if ty != "diffuse" {
                     return Err(pos.error(format!(
                         "area light \"{ty}\" is not supported (only \"diffuse\")"
@@ -491,17 +519,18 @@ impl Importer<'_> {
                 });
             }
             "LightSource" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &list_cap)?;
                 self.light(&ty, &p, pos)?;
             }
             "Shape" => {
-                let ty = Self::string(toks, at, pos, dir)?;
-                let p = params::parse(toks, at)?;
+                self.shapes += 1;
+                let ty = Self::string(lx, pos, dir)?;
+                let p = params::parse(lx, &|name, so_far| self.shape_cap(&ty, name, so_far))?;
                 self.shape(&ty, &p, pos)?;
             }
             "ObjectBegin" => {
-                let name = Self::string(toks, at, pos, dir)?;
+                let name = Self::string(lx, pos, dir)?;
                 if self.defining.is_some() {
                     return Err(pos.error("`ObjectBegin` inside another object definition"));
                 }
@@ -521,12 +550,15 @@ impl Importer<'_> {
                 self.state = s;
             }
             "ObjectInstance" => {
-                let name = Self::string(toks, at, pos, dir)?;
+                let name = Self::string(lx, pos, dir)?;
                 let prims = self
                     .instances
                     .get(&name)
                     .ok_or_else(|| pos.error(format!("unknown object \"{name}\"")))?;
                 let count: usize = prims.iter().map(prim_triangles).sum();
+                if self.prims.len() + prims.len() > self.limits.max_objects {
+                    return Err(self.too_many(pos, "objects (shapes)"));
+                }
                 let m = self.state.ctm;
                 let placed: Vec<Prim> = prims.iter().map(|p| transform_prim(p, &m)).collect();
                 self.count_triangles(count, pos)?;
@@ -537,8 +569,13 @@ impl Importer<'_> {
         Ok(())
     }
 
-    fn concat(&mut self, m: DMat4) {
-        self.state.ctm *= m;
+    /// The current transform times `m`; refused if the product has no inverse (factors
+    /// each invertible can still underflow to a zero determinant).
+    fn concat(&mut self, m: DMat4, pos: &Pos, dir: &str) -> Result<(), ImportError> {
+        let ctm = self.state.ctm * m;
+        invertible(&ctm, pos, &format!("the transform after `{dir}`"))?;
+        self.state.ctm = ctm;
+        Ok(())
     }
 
     fn open(&mut self, name: &str, pos: &Pos) -> Result<Vec<u8>, ImportError> {
@@ -549,9 +586,61 @@ impl Importer<'_> {
                 format!("more than {} files named", self.limits.max_files),
             ));
         }
-        self.files
+        let bytes = self
+            .files
             .read(name, self.limits.max_file_bytes)
-            .map_err(|e| pos.error(e))
+            .map_err(|e| pos.error(e))?;
+        self.read_bytes += bytes.len() as u64;
+        if self.read_bytes > self.limits.max_read_bytes {
+            return Err(ImportError::limit(
+                pos.to_string(),
+                format!(
+                    "reading \"{name}\" takes the files this scene reads (each Include counted every time) past the limit of {} bytes",
+                    self.limits.max_read_bytes
+                ),
+            ));
+        }
+        Ok(bytes)
+    }
+
+    /// The cap of a shape's parameter, from the triangle limit: `indices` may hold the
+    /// scene's remaining room, and a point list (`P`, `N`, `S`, `uv`) no more points than
+    /// the indices read before it can use (4096 spare), or than three per triangle of that
+    /// room when the points come first. Unused points are dropped later
+    /// ([`drop_unused_points`]); these caps bound what reading them costs.
+    fn shape_cap(&self, ty: &str, name: &str, so_far: &Params) -> Cap {
+        let room = self.limits.max_triangles.saturating_sub(self.triangles);
+        let limit = self.limits.max_triangles;
+        // Numbers per triangle in `indices`: a bilinear patch is 4 indices, 2 triangles.
+        let per_triangle = if ty == "bilinearmesh" { 2 } else { 3 };
+        let width = match name {
+            "indices" => {
+                return Cap {
+                    max: room.saturating_mul(per_triangle),
+                    why: format!("the scene's limit of {limit} triangles"),
+                }
+            }
+            "P" | "N" | "S" => 3,
+            "uv" | "st" => 2,
+            _ => return list_cap(name, so_far),
+        };
+        let (points, why) = match so_far.get("indices").map(|p| &p.values) {
+            Some(Values::Nums(idx)) => (
+                idx.len().saturating_add(4096),
+                format!(
+                    "one point per index read before it ({}), 4096 spare",
+                    idx.len()
+                ),
+            ),
+            _ => (
+                room.saturating_mul(3).max(4),
+                format!("three points per triangle of the scene's limit of {limit} triangles"),
+            ),
+        };
+        Cap {
+            max: points.saturating_mul(width),
+            why,
+        }
     }
 
     fn count_triangles(&mut self, n: usize, pos: &Pos) -> Result<(), ImportError> {
@@ -566,6 +655,39 @@ impl Importer<'_> {
             ));
         }
         Ok(())
+    }
+
+    /// What a file has made so far against the object limit, checked after each
+    /// directive: shapes (inside object definitions too), placed objects and lights at
+    /// most `max_objects` each, materials, textures and named coordinate systems at most
+    /// 4× that (measured before: a million `Shape "sphere"` lines took 1.2 GB before the
+    /// document's validation refused them).
+    fn check_counts(&self, pos: &Pos) -> Result<(), ImportError> {
+        let max = self.limits.max_objects;
+        if self.shapes > max || self.prims.len() > max {
+            return Err(self.too_many(pos, "objects (shapes)"));
+        }
+        if self.lights.len() > max {
+            return Err(self.too_many(pos, "lights"));
+        }
+        let named = self.materials.len() + self.textures.len() + self.named_coords.len();
+        if named > max.saturating_mul(4).max(64) {
+            return Err(self.too_many(pos, "materials, textures and coordinate systems"));
+        }
+        Ok(())
+    }
+
+    fn too_many(&self, pos: &Pos, what: &str) -> ImportError {
+        let max = self.limits.max_objects;
+        let max = if what.starts_with("materials") {
+            max.saturating_mul(4).max(64)
+        } else {
+            max
+        };
+        ImportError::limit(
+            pos.to_string(),
+            format!("the scene has more than the limit of {max} {what}"),
+        )
     }
 
     fn emit_prims(&mut self, prims: Vec<Prim>) {
@@ -1034,6 +1156,8 @@ impl Importer<'_> {
             }
         };
         self.count_triangles(indices.len(), pos)?;
+        let (positions, normals, uvs, indices) =
+            drop_unused_points(positions, normals, uvs, indices);
         let normal_m = DMat3::from_mat4(m).inverse().transpose();
         let prim = Prim::Mesh {
             positions: positions.iter().map(|&q| m.transform_point3(q)).collect(),
@@ -1287,6 +1411,29 @@ impl Importer<'_> {
     }
 }
 
+/// Refuses a transform without an inverse (a zero scale, a matrix of determinant 0, a
+/// product that underflows): the shapes it places would be flat or a point, their normals
+/// (the inverse transpose) and a camera's world-from-camera undefined. pbrt-v4 accepts it
+/// and renders NaNs or nothing; an error at the directive says why.
+fn invertible(m: &DMat4, pos: &Pos, what: &str) -> Result<(), ImportError> {
+    let det = DMat3::from_mat4(*m).determinant();
+    if det == 0.0 || !det.is_finite() || !m.inverse().is_finite() {
+        return Err(pos.error(format!(
+            "{what} is degenerate (determinant {det}): it has no inverse"
+        )));
+    }
+    Ok(())
+}
+
+/// A number as a message shows it: plain, or in exponent form when very small or large.
+fn num(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e9).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// pbrt's `LookAt`: camera-from-world for an eye at `pos` looking at `look` (pbrt-v4
 /// `transform.cpp`: right = up × dir, a left-handed frame).
 fn look_at(pos: DVec3, look: DVec3, up: DVec3) -> Option<DMat4> {
@@ -1300,6 +1447,53 @@ fn look_at(pos: DVec3, look: DVec3, up: DVec3) -> Option<DMat4> {
         DVec4::new(pos.x, pos.y, pos.z, 1.0),
     );
     Some(world_from_camera.inverse())
+}
+
+/// A mesh without the points no triangle uses (kept in their order, indices renumbered):
+/// the document stores only what renders (measured before: 30 M unused numbers in `P`
+/// became a 150 MB document). A mesh that uses every point is returned as it is.
+#[allow(clippy::type_complexity)]
+fn drop_unused_points(
+    positions: Vec<DVec3>,
+    normals: Option<Vec<DVec3>>,
+    uvs: Option<Vec<[f32; 2]>>,
+    mut indices: Vec<[u32; 3]>,
+) -> (
+    Vec<DVec3>,
+    Option<Vec<DVec3>>,
+    Option<Vec<[f32; 2]>>,
+    Vec<[u32; 3]>,
+) {
+    let mut used = vec![false; positions.len()];
+    for &i in indices.iter().flatten() {
+        used[i as usize] = true;
+    }
+    if used.iter().all(|&u| u) {
+        return (positions, normals, uvs, indices);
+    }
+    let mut new_index = vec![u32::MAX; positions.len()];
+    for (next, (k, _)) in used.iter().enumerate().filter(|(_, &u)| u).enumerate() {
+        new_index[k] = next as u32;
+    }
+    let keep = |k: &usize| used[*k];
+    let pick = |v: Vec<DVec3>| -> Vec<DVec3> {
+        v.into_iter()
+            .enumerate()
+            .filter(|(k, _)| keep(k))
+            .map(|(_, p)| p)
+            .collect()
+    };
+    let uvs = uvs.map(|v| {
+        v.into_iter()
+            .enumerate()
+            .filter(|(k, _)| keep(k))
+            .map(|(_, p)| p)
+            .collect()
+    });
+    for i in indices.iter_mut().flatten() {
+        *i = new_index[*i as usize];
+    }
+    (pick(positions), normals.map(pick), uvs, indices)
 }
 
 fn prim_triangles(p: &Prim) -> usize {
@@ -1408,5 +1602,216 @@ fn object_doc(p: Prim, material: String, mirror: &DMat4, mirrored: bool) -> Obje
                 transform: None,
             })
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::import::FileSource;
+
+    /// Files in memory, by name as the scene writes it.
+    struct Files(HashMap<&'static str, Vec<u8>>);
+
+    impl FileSource for Files {
+        fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, String> {
+            let data = self
+                .0
+                .get(name)
+                .ok_or_else(|| format!("\"{name}\" is not in the bundle"))?;
+            if data.len() as u64 > max {
+                return Err(format!("\"{name}\" is larger than {max} bytes"));
+            }
+            Ok(data.clone())
+        }
+    }
+
+    fn limits() -> ImportLimits {
+        ImportLimits {
+            max_file_bytes: 1 << 20,
+            max_triangles: 10,
+            max_texture_pixels: 1 << 10,
+            max_files: 64,
+            max_read_bytes: 1 << 20,
+            max_objects: 5,
+        }
+    }
+
+    fn run(
+        text: &str,
+        files: &[(&'static str, &str)],
+        l: &ImportLimits,
+    ) -> Result<Imported, ImportError> {
+        let files = Files(
+            files
+                .iter()
+                .map(|(n, t)| (*n, t.as_bytes().to_vec()))
+                .collect(),
+        );
+        import("s.pbrt", text, &files, l)
+    }
+
+    fn mesh(indices: &str, points: &str) -> String {
+        format!("WorldBegin\nShape \"trianglemesh\" \"integer indices\" [{indices}]\n  \"point3 P\" [{points}]\n")
+    }
+
+    #[test]
+    fn indices_past_the_triangle_limit_stop_the_reading_at_the_first_one_too_many() {
+        // 11 triangles against a limit of 10, then something the tokenizer refuses: the
+        // limit is met first, so nothing after it was read.
+        let idx = "0 1 2 ".repeat(11);
+        let e = run(
+            &mesh(&format!("{idx} @"), "0 0 0 1 0 0 0 1 0"),
+            &[],
+            &limits(),
+        )
+        .unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "s.pbrt:2:101", "{e}");
+        assert!(e.message.contains("limit of 10 triangles"), "{e}");
+    }
+
+    #[test]
+    fn points_beyond_what_the_indices_can_use_are_refused_while_read() {
+        // Indices first: one point per index read, 4096 spare.
+        let pts = "0 0 0 ".repeat(3 + 4097);
+        let e = run(&mesh("0 1 2", &pts), &[], &limits()).unwrap_err();
+        assert!(
+            e.too_large && e.message.contains("one point per index"),
+            "{e}"
+        );
+        // Points first: three per triangle of the limit (10 triangles, 30 points).
+        let text = format!(
+            "WorldBegin\nShape \"trianglemesh\" \"point3 P\" [{}] \"integer indices\" [0 1 2]",
+            "0 0 0 ".repeat(31)
+        );
+        let e = run(&text, &[], &limits()).unwrap_err();
+        assert!(
+            e.too_large && e.message.contains("three points per triangle"),
+            "{e}"
+        );
+        assert!(e.location.starts_with("s.pbrt:2:"), "{e}");
+    }
+
+    #[test]
+    fn unused_points_are_dropped_and_indices_renumbered() {
+        let im = run(
+            &mesh("1 3 4", "9 9 9  0 0 0  9 9 9  1 0 0  0 1 0"),
+            &[],
+            &limits(),
+        )
+        .unwrap();
+        let ObjectDoc::Mesh(m) = &im.doc.objects[0] else {
+            panic!("not a mesh")
+        };
+        assert_eq!(m.positions.len(), 3);
+        assert!(m.positions.iter().all(|p| p[0] < 2.0), "{:?}", m.positions);
+        let mut idx: Vec<u64> = m.indices.iter().flatten().copied().collect();
+        idx.sort_unstable();
+        assert_eq!(idx, [0, 1, 2]);
+    }
+
+    #[test]
+    fn shapes_and_lights_past_the_object_limit_are_refused_where_they_pass_it() {
+        let text = format!("WorldBegin\n{}", "Shape \"sphere\"\n".repeat(100));
+        let e = run(&text, &[], &limits()).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "s.pbrt:7:1");
+        assert!(e.message.contains("limit of 5 objects"), "{e}");
+        let text = format!("WorldBegin\n{}", "LightSource \"point\"\n".repeat(100));
+        let e = run(&text, &[], &limits()).unwrap_err();
+        assert_eq!(e.location, "s.pbrt:7:1");
+        assert!(e.message.contains("limit of 5 lights"), "{e}");
+        // Defining shapes in an object counts too.
+        let text = format!(
+            "WorldBegin\nObjectBegin \"a\"\n{}ObjectEnd",
+            "Shape \"sphere\"\n".repeat(10)
+        );
+        assert!(run(&text, &[], &limits()).unwrap_err().too_large);
+    }
+
+    #[test]
+    fn includes_are_budgeted_by_the_bytes_they_make_the_import_read() {
+        let comment = format!("# {}\n", "x".repeat(300));
+        let l = ImportLimits {
+            max_read_bytes: 1000,
+            ..limits()
+        };
+        let text = "Include \"c.pbrt\"\n".repeat(200);
+        let e = run(&text, &[("c.pbrt", &comment)], &l).unwrap_err();
+        assert!(e.too_large, "{e}");
+        // The scene itself (3400 bytes) is already past 1000: the first include fails.
+        assert_eq!(e.location, "s.pbrt:1:1");
+        let three = "Include \"c.pbrt\"\n".repeat(3);
+        let l = ImportLimits {
+            max_read_bytes: three.len() as u64 + 2 * comment.len() as u64,
+            ..limits()
+        };
+        let two = "Include \"c.pbrt\"\n".repeat(2);
+        assert!(run(&two, &[("c.pbrt", &comment)], &l).is_ok());
+        let e = run(&three, &[("c.pbrt", &comment)], &l).unwrap_err();
+        assert_eq!(e.location, "s.pbrt:3:1");
+        assert!(e.message.contains("each Include counted every time"), "{e}");
+    }
+
+    #[test]
+    fn degenerate_transforms_are_refused_at_their_directive() {
+        let cases = [
+            ("Scale 0 0 0", "`Scale 0 0 0` is degenerate"),
+            ("Scale 1 0 1", "`Scale 1 0 1` is degenerate"),
+            (
+                "Transform [1 0 0 0  0 1 0 0  0 0 0 0  0 0 0 1]",
+                "the matrix of `Transform` is degenerate",
+            ),
+            (
+                "ConcatTransform [0 0 0 0  0 0 0 0  0 0 0 0  0 0 0 1]",
+                "the matrix of `ConcatTransform` is degenerate",
+            ),
+            (
+                "Scale 1e-100 1e-100 1e-100 Scale 1e-100 1 1",
+                "the transform after `Scale` is degenerate",
+            ),
+            ("LookAt 0 0 0  0 0 0  0 1 0", "the eye equals the target"),
+            ("LookAt 0 0 0  0 1 0  0 1 0", "parallel"),
+            ("Rotate 30 0 0 0", "non-zero axis"),
+        ];
+        for (directive, want) in cases {
+            let text = format!("WorldBegin\n  {directive}\nShape \"sphere\"");
+            let e = run(&text, &[], &limits()).unwrap_err();
+            assert!(!e.too_large, "{directive}: {e}");
+            assert!(e.message.contains(want), "{directive}: {e}");
+            let col = if directive.contains("1e-100 Scale") {
+                30
+            } else {
+                3
+            };
+            assert_eq!(e.location, format!("s.pbrt:2:{col}"), "{directive}: {e}");
+        }
+        assert!(run(
+            "WorldBegin Scale 1 -2 3 Shape \"trianglemesh\" \"point3 P\" [0 0 0 1 0 0 0 1 0]",
+            &[],
+            &limits()
+        )
+        .is_ok());
+    }
+
+    #[test]
+    fn nested_includes_resolve_from_the_main_files_folder_as_in_pbrt_v4() {
+        // pbrt-v4 (parser.cpp) sets its search directory once, from the file named on the
+        // command line, and resolves every Include, Import, PLY and texture name against
+        // it: "geo/a.pbrt" names its own neighbour as "geo/b.pbrt".
+        let files = [
+            ("geo/a.pbrt", "Include \"geo/b.pbrt\"\n"),
+            ("geo/b.pbrt", "Shape \"sphere\"\n"),
+        ];
+        let im = run("WorldBegin\nInclude \"geo/a.pbrt\"\n", &files, &limits()).unwrap();
+        assert_eq!(im.doc.objects.len(), 1);
+        let files = [
+            ("geo/a.pbrt", "Include \"b.pbrt\"\n"),
+            ("geo/b.pbrt", "Shape \"sphere\"\n"),
+        ];
+        let e = run("WorldBegin\nInclude \"geo/a.pbrt\"\n", &files, &limits()).unwrap_err();
+        assert_eq!(e.location, "geo/a.pbrt:1:1");
+        assert!(e.message.contains("\"b.pbrt\" is not in the bundle"), "{e}");
     }
 }

@@ -1,6 +1,6 @@
 //! pbrt parameter lists: `"type name" value` or `"type name" [ values ]`.
 
-use super::lexer::{Pos, Tok};
+use super::lexer::{Lexer, Pos, Tok};
 use crate::import::ImportError;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -88,45 +88,87 @@ impl Params {
     }
 }
 
-/// Reads a parameter list from `toks[*at..]`, stopping at the next directive.
-pub fn parse(toks: &[(Tok, Pos)], at: &mut usize) -> Result<Params, ImportError> {
+/// How many values a parameter may hold: the most, and the limit that sets it (named
+/// in the error).
+pub struct Cap {
+    pub max: usize,
+    pub why: String,
+}
+
+/// What a parameter's type holds.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Nums {
+        integer: bool,
+    },
+    Strs,
+    Bools,
+    /// A named spectrum ("metal-Cu-eta") or wavelength/value pairs: the first value says.
+    Spectrum,
+}
+
+impl Kind {
+    fn of(ty: &str) -> Option<Self> {
+        Some(match ty {
+            "integer" => Kind::Nums { integer: true },
+            "float" | "point" | "point2" | "point3" | "vector" | "vector2" | "vector3"
+            | "normal" | "normal3" | "color" | "rgb" | "blackbody" => Kind::Nums { integer: false },
+            "string" | "texture" => Kind::Strs,
+            "bool" => Kind::Bools,
+            "spectrum" => Kind::Spectrum,
+            _ => return None,
+        })
+    }
+}
+
+/// Reads a parameter list from `lx`, stopping at the next directive. Each parameter's
+/// values are counted against `cap(name, parameters so far)` as they are read: the first
+/// value past it is refused (a limit error at that value), before any more is read.
+pub fn parse(lx: &mut Lexer, cap: &dyn Fn(&str, &Params) -> Cap) -> Result<Params, ImportError> {
     let mut out = Params::default();
-    while let Some((Tok::Str(decl), pos)) = toks.get(*at) {
-        *at += 1;
+    while let Some((Tok::Str(_), _)) = lx.peek()? {
+        let Some((Tok::Str(decl), pos)) = lx.take()? else {
+            break;
+        };
         let mut words = decl.split_whitespace();
         let (Some(ty), Some(name), None) = (words.next(), words.next(), words.next()) else {
             return Err(pos.error(format!(
                 "\"{decl}\" is not a parameter declaration (\"type name\")"
             )));
         };
-        let mut raw = Vec::new();
-        match toks.get(*at) {
-            Some((Tok::Open, _)) => {
-                *at += 1;
-                loop {
-                    match toks.get(*at) {
-                        Some((Tok::Close, _)) => {
-                            *at += 1;
-                            break;
-                        }
-                        Some((t @ (Tok::Num(_) | Tok::Str(_) | Tok::Word(_)), p)) => {
-                            raw.push((t.clone(), p.clone()));
-                            *at += 1;
-                        }
-                        Some((t, p)) => {
-                            return Err(p.error(format!("unexpected {} in a list", t.describe())))
-                        }
-                        None => return Err(pos.error(format!("\"{name}\": `]` is missing"))),
-                    }
+        let kind = Kind::of(ty)
+            .ok_or_else(|| pos.error(format!("unknown parameter type `{ty}` of \"{name}\"")))?;
+        let cap = cap(name, &out);
+        let mut list = List {
+            name,
+            kind,
+            cap,
+            pos: &pos,
+            values: None,
+        };
+        if let Some((Tok::Open, _)) = lx.peek()? {
+            lx.take()?;
+            loop {
+                match lx.take()? {
+                    Some((Tok::Close, _)) => break,
+                    Some((Tok::Open, p)) => return Err(p.error("unexpected `[` in a list")),
+                    Some((t, p)) => list.push(t, &p)?,
+                    None => return Err(pos.error(format!("\"{name}\": `]` is missing"))),
                 }
             }
-            Some((t @ (Tok::Num(_) | Tok::Str(_) | Tok::Word(_)), p)) => {
-                raw.push((t.clone(), p.clone()));
-                *at += 1;
-            }
-            _ => return Err(pos.error(format!("\"{name}\" has no value"))),
+        } else if let Some((Tok::Num(_) | Tok::Str(_) | Tok::Word(_), _)) = lx.peek()? {
+            let Some((t, p)) = lx.take()? else {
+                break;
+            };
+            list.push(t, &p)?;
+        } else {
+            return Err(pos.error(format!("\"{name}\" has no value")));
         }
-        let values = typed(ty, name, &raw, pos)?;
+        let values = list.values.unwrap_or_else(|| match kind {
+            Kind::Strs => Values::Strs(Vec::new()),
+            Kind::Bools => Values::Bools(Vec::new()),
+            Kind::Nums { .. } | Kind::Spectrum => Values::Nums(Vec::new()),
+        });
         out.list.push(Param {
             ty: ty.to_string(),
             name: name.to_string(),
@@ -137,78 +179,119 @@ pub fn parse(toks: &[(Tok, Pos)], at: &mut usize) -> Result<Params, ImportError>
     Ok(out)
 }
 
-fn typed(ty: &str, name: &str, raw: &[(Tok, Pos)], pos: &Pos) -> Result<Values, ImportError> {
-    let numeric = matches!(
-        ty,
-        "integer"
-            | "float"
-            | "point"
-            | "point2"
-            | "point3"
-            | "vector"
-            | "vector2"
-            | "vector3"
-            | "normal"
-            | "normal3"
-            | "color"
-            | "rgb"
-            | "blackbody"
-    );
-    let strings = matches!(ty, "string" | "texture");
-    if ty == "spectrum" {
-        // A named spectrum ("metal-Cu-eta") or wavelength/value pairs.
-        return match raw.first() {
-            Some((Tok::Str(_), _)) => strings_of(name, raw).map(Values::Strs),
-            _ => nums_of(name, raw).map(Values::Nums),
+/// One parameter's values as they are read.
+struct List<'a> {
+    name: &'a str,
+    kind: Kind,
+    cap: Cap,
+    pos: &'a Pos,
+    values: Option<Values>,
+}
+
+impl List<'_> {
+    fn push(&mut self, t: Tok, p: &Pos) -> Result<(), ImportError> {
+        let name = self.name;
+        let len = match &self.values {
+            None => 0,
+            Some(Values::Nums(v)) => v.len(),
+            Some(Values::Strs(v)) => v.len(),
+            Some(Values::Bools(v)) => v.len(),
         };
-    }
-    if numeric {
-        let v = nums_of(name, raw)?;
-        if ty == "integer" {
-            if let Some(bad) = v.iter().find(|x| x.fract() != 0.0) {
-                return Err(pos.error(format!("\"{name}\" must hold integers, got {bad}")));
-            }
+        if len >= self.cap.max {
+            return Err(ImportError::limit(
+                p.to_string(),
+                format!(
+                    "\"{name}\" holds more than {} values ({}): refused at this one",
+                    self.cap.max, self.cap.why
+                ),
+            ));
         }
-        Ok(Values::Nums(v))
-    } else if strings {
-        strings_of(name, raw).map(Values::Strs)
-    } else if ty == "bool" {
-        raw.iter()
-            .map(|(t, p)| match t {
-                Tok::Word(w) | Tok::Str(w) if w == "true" => Ok(true),
-                Tok::Word(w) | Tok::Str(w) if w == "false" => Ok(false),
-                t => Err(p.error(format!(
+        let kind = match (self.kind, &t) {
+            (Kind::Spectrum, Tok::Str(_)) => Kind::Strs,
+            (Kind::Spectrum, _) => Kind::Nums { integer: false },
+            (k, _) => k,
+        };
+        let values = self.values.get_or_insert_with(|| match kind {
+            Kind::Strs => Values::Strs(Vec::new()),
+            Kind::Bools => Values::Bools(Vec::new()),
+            Kind::Nums { .. } | Kind::Spectrum => Values::Nums(Vec::new()),
+        });
+        match (values, t) {
+            (Values::Nums(v), Tok::Num(x)) => {
+                if matches!(kind, Kind::Nums { integer: true }) && x.fract() != 0.0 {
+                    return Err(self
+                        .pos
+                        .error(format!("\"{name}\" must hold integers, got {x}")));
+                }
+                v.push(x);
+            }
+            (Values::Nums(_), t) => {
+                return Err(p.error(format!(
+                    "\"{name}\" must hold numbers, got {}",
+                    t.describe()
+                )))
+            }
+            (Values::Strs(v), Tok::Str(s)) => v.push(s),
+            (Values::Strs(_), t) => {
+                return Err(p.error(format!(
+                    "\"{name}\" must hold strings, got {}",
+                    t.describe()
+                )))
+            }
+            (Values::Bools(v), Tok::Word(w) | Tok::Str(w)) if w == "true" || w == "false" => {
+                v.push(w == "true");
+            }
+            (Values::Bools(_), t) => {
+                return Err(p.error(format!(
                     "\"{name}\" must be true or false, got {}",
                     t.describe()
-                ))),
-            })
-            .collect::<Result<_, _>>()
-            .map(Values::Bools)
-    } else {
-        Err(pos.error(format!("unknown parameter type `{ty}` of \"{name}\"")))
+                )))
+            }
+        }
+        Ok(())
     }
 }
 
-fn nums_of(name: &str, raw: &[(Tok, Pos)]) -> Result<Vec<f64>, ImportError> {
-    raw.iter()
-        .map(|(t, p)| match t {
-            Tok::Num(v) => Ok(*v),
-            t => Err(p.error(format!(
-                "\"{name}\" must hold numbers, got {}",
-                t.describe()
-            ))),
-        })
-        .collect()
-}
+#[cfg(test)]
+mod tests {
+    use super::*;
 
-fn strings_of(name: &str, raw: &[(Tok, Pos)]) -> Result<Vec<String>, ImportError> {
-    raw.iter()
-        .map(|(t, p)| match t {
-            Tok::Str(s) => Ok(s.clone()),
-            t => Err(p.error(format!(
-                "\"{name}\" must hold strings, got {}",
-                t.describe()
-            ))),
-        })
-        .collect()
+    fn cap3(_: &str, _: &Params) -> Cap {
+        Cap {
+            max: 3,
+            why: "a test's limit".into(),
+        }
+    }
+
+    #[test]
+    fn a_list_is_refused_at_its_first_value_past_the_cap() {
+        // The bad token after the fourth value is never read.
+        let mut lx = Lexer::new("p.pbrt", "\"float x\" [1 2 3 4 @]");
+        let e = parse(&mut lx, &cap3).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "p.pbrt:1:18");
+        assert!(
+            e.message.contains("more than 3 values (a test's limit)"),
+            "{e}"
+        );
+        let mut lx = Lexer::new("p.pbrt", "\"float x\" [1 2 3] \"string s\" \"a\" Shape");
+        let p = parse(&mut lx, &cap3).unwrap();
+        assert_eq!(p.nums("x").unwrap().unwrap().0, [1.0, 2.0, 3.0]);
+        assert_eq!(p.string("s").unwrap().unwrap().0, "a");
+        assert_eq!(lx.take().unwrap().unwrap().0, Tok::Word("Shape".into()));
+    }
+
+    #[test]
+    fn values_are_typed_as_they_are_read() {
+        let err = |text: &str| {
+            let mut lx = Lexer::new("p.pbrt", text);
+            parse(&mut lx, &cap3).unwrap_err().to_string()
+        };
+        assert!(err("\"integer n\" [1.5]").contains("must hold integers"));
+        assert!(err("\"float n\" [\"a\"]").contains("p.pbrt:1:12"));
+        assert!(err("\"bool b\" [1]").contains("true or false"));
+        assert!(err("\"spectrum s\" [\"a\" 1]").contains("must hold strings"));
+        assert!(err("\"wat w\" 1").contains("unknown parameter type `wat`"));
+        assert!(err("\"float n\" [1").contains("`]` is missing"));
+    }
 }
