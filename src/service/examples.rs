@@ -1,7 +1,8 @@
 //! `GET /v1/examples`: the bundled scenes of `scenes/`, embedded in the binary so the
 //! service needs no files at run time (service-api.md).
 
-use super::http::{ApiError, AppState};
+use super::error::ApiError;
+use super::state::AppState;
 use axum::extract::State;
 use axum::response::IntoResponse;
 use serde_json::{json, Value};

@@ -14,16 +14,21 @@
 //! - [`examples`]: the bundled scenes; [`viewer`]: the browser page.
 
 pub mod auth;
+pub mod error;
 pub mod error_code;
 pub mod examples;
+pub mod extract;
+pub mod handlers;
 pub mod http;
 pub mod iterations;
 pub mod jobs;
 pub mod live;
 pub mod metrics;
+pub mod origin;
 pub mod parse_error;
 pub mod retention;
 pub mod stall;
+pub mod state;
 pub mod store;
 pub mod trim;
 pub mod viewer;
@@ -276,7 +281,7 @@ fn app_state(
     http::AppState {
         jobs: jobs.clone(),
         metrics,
-        origin: Arc::new(auth::OriginPolicy::new(&config.allowed_hosts)),
+        origin: Arc::new(origin::OriginPolicy::new(&config.allowed_hosts)),
         uploads: Arc::new(tokio::sync::Semaphore::new(
             config.validation_budget.div_ceil(1024).max(1),
         )),

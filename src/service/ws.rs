@@ -22,9 +22,11 @@
 //! (`service::stall`). That is why the upgrade is done here with tokio-tungstenite
 //! rather than through axum's `WebSocketUpgrade`, whose messages cannot be fragmented.
 
-use super::http::{ApiError, AppState, ErrorCode, ErrorDetail, JobId};
+use super::error::{ApiError, ErrorCode, ErrorDetail};
+use super::extract::JobId;
 use super::jobs::{LiveFrame, Snapshot, StoredFrame, Watch};
 use super::metrics::WatcherGuard;
+use super::state::AppState;
 use super::store::{JobError, JobRecord, JobState, Layer, Progress};
 use axum::extract::{Request, State};
 use axum::http::{header, HeaderMap, StatusCode};
