@@ -6,7 +6,7 @@ use super::extract::{upload_settings, JobId, Json, Params, SceneBody, SceneConte
 use super::jobs::{CancelOutcome, DeleteOutcome, FrameBytes, FrameLookup, SubmitError};
 use super::state::AppState;
 use super::store::{clip, JobRecord, JobState, Layer};
-use crate::scene::{parse_scene, Problem, SceneErrorKind, SceneOrigin};
+use crate::scene::{parse_scene, Problem, SceneError, SceneErrorKind, SceneOrigin};
 use axum::extract::State;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -96,56 +96,21 @@ pub(super) struct Created {
     warnings: Vec<String>,
 }
 
+/// `POST /v1/jobs`: the submission imported if it is a file, validated, checked, then
+/// queued durably before the `201`.
 pub(super) async fn create_job(
     State(st): State<AppState>,
     Params(query): Params,
     SceneBody(body, permit): SceneBody,
 ) -> Result<Response, ApiError> {
-    // Validation can be heavy (8 MiB of mesh): off the async runtime. A panic inside the
-    // parser becomes a 500, never a dead server. An upload is imported into a scene
-    // document first; the job stores that document, so a restart parses it again.
     let limits = *st.jobs.limits();
     let settings = match &body {
         SceneContent::Upload(..) => Some(upload_settings(&query)?),
         SceneContent::Json(_) => None,
     };
-    let (text, parsed, warnings) = tokio::task::spawn_blocking(move || {
-        let (text, warnings) = match body {
-            SceneContent::Json(text) => (text, Vec::new()),
-            SceneContent::Upload(kind, bytes) => {
-                let s = settings.unwrap_or_default();
-                match crate::import::import_upload(kind, &bytes, &s, &limits) {
-                    Ok(r) => r,
-                    Err(e) => return (String::new(), Err(e), Vec::new()),
-                }
-            }
-        };
-        let r = parse_scene(&text, &SceneOrigin::Request, &limits);
-        (text, r, warnings)
-    })
-    .await
-    .map_err(|e| ApiError::internal("validating the scene", &e))?;
+    let (text, parsed, warnings) = validate(body, settings, limits).await?;
     drop(permit);
-    let scene = parsed.map_err(|mut e| {
-        let code = match e.kind {
-            SceneErrorKind::InvalidJson => ErrorCode::InvalidJson,
-            SceneErrorKind::InvalidScene => ErrorCode::InvalidScene,
-            // A parameter above a limit is not a body too large (413): 422 with the flag
-            // that raises it.
-            SceneErrorKind::TooLarge => ErrorCode::OverLimit,
-        };
-        for p in &mut e.problems {
-            p.message = with_raise_hint(&p.path, &p.message);
-        }
-        let first = e.problems.first();
-        let mut err = ApiError::new(
-            code,
-            first.map_or_else(|| "invalid scene".to_owned(), |p| p.message.clone()),
-        )
-        .at(first.map(|p| p.path.clone()).unwrap_or_default());
-        err.problems = e.problems;
-        err
-    })?;
+    let scene = parsed.map_err(refused)?;
     let chars = scene.name.chars().count();
     if chars > MAX_NAME_CHARS {
         return Err(ApiError::new(
@@ -174,25 +139,7 @@ pub(super) async fn create_job(
         .jobs
         .submit_parsed(&name, &text, Some(scene))
         .await
-        .map_err(|e| match e {
-            SubmitError::QueueFull(n) => {
-                let mut err = ApiError::new(
-                    ErrorCode::QueueFull,
-                    format!("the queue is full ({n} jobs waiting); retry later"),
-                );
-                err.retry_after_s = Some(retry_after(n));
-                err
-            }
-            SubmitError::ShuttingDown => {
-                let mut err = ApiError::new(
-                    ErrorCode::Unavailable,
-                    "the server is shutting down; retry later",
-                );
-                err.retry_after_s = Some(5);
-                err
-            }
-            SubmitError::Store(e) => ApiError::from(e),
-        })?;
+        .map_err(not_queued)?;
     let mut headers = HeaderMap::new();
     if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
         headers.insert(header::LOCATION, v);
@@ -203,6 +150,78 @@ pub(super) async fn create_job(
         Json(Created { job, warnings }),
     )
         .into_response())
+}
+
+/// A submission's scene: its document (imported first if it is a file), parsed and
+/// validated, with the import's warnings. Validation can be heavy (8 MiB of mesh): off the
+/// async runtime. A panic inside the parser becomes a 500, never a dead server. The job
+/// stores the document, so a restart parses it again.
+async fn validate(
+    body: SceneContent,
+    settings: Option<crate::import::UploadSettings>,
+    limits: crate::scene::Limits,
+) -> Result<(String, Result<crate::scene::Scene, SceneError>, Vec<String>), ApiError> {
+    tokio::task::spawn_blocking(move || {
+        let (text, warnings) = match body {
+            SceneContent::Json(text) => (text, Vec::new()),
+            SceneContent::Upload(kind, bytes) => {
+                let s = settings.unwrap_or_default();
+                match crate::import::import_upload(kind, &bytes, &s, &limits) {
+                    Ok(r) => r,
+                    Err(e) => return (String::new(), Err(e), Vec::new()),
+                }
+            }
+        };
+        let r = parse_scene(&text, &SceneOrigin::Request, &limits);
+        (text, r, warnings)
+    })
+    .await
+    .map_err(|e| ApiError::internal("validating the scene", &e))
+}
+
+/// A refused scene as an answer: every problem listed, the first as the headline.
+fn refused(mut e: SceneError) -> ApiError {
+    let code = match e.kind {
+        SceneErrorKind::InvalidJson => ErrorCode::InvalidJson,
+        SceneErrorKind::InvalidScene => ErrorCode::InvalidScene,
+        // A parameter above a limit is not a body too large (413): 422 with the flag
+        // that raises it.
+        SceneErrorKind::TooLarge => ErrorCode::OverLimit,
+    };
+    for p in &mut e.problems {
+        p.message = with_raise_hint(&p.path, &p.message);
+    }
+    let first = e.problems.first();
+    let mut err = ApiError::new(
+        code,
+        first.map_or_else(|| "invalid scene".to_owned(), |p| p.message.clone()),
+    )
+    .at(first.map(|p| p.path.clone()).unwrap_or_default());
+    err.problems = e.problems;
+    err
+}
+
+/// Why a valid scene was not queued.
+fn not_queued(e: SubmitError) -> ApiError {
+    match e {
+        SubmitError::QueueFull(n) => {
+            let mut err = ApiError::new(
+                ErrorCode::QueueFull,
+                format!("the queue is full ({n} jobs waiting); retry later"),
+            );
+            err.retry_after_s = Some(retry_after(n));
+            err
+        }
+        SubmitError::ShuttingDown => {
+            let mut err = ApiError::new(
+                ErrorCode::Unavailable,
+                "the server is shutting down; retry later",
+            );
+            err.retry_after_s = Some(5);
+            err
+        }
+        SubmitError::Store(e) => ApiError::from(e),
+    }
 }
 
 /// Seconds to wait before retrying a full queue: grows with the backlog, 1 s to 60 s.
@@ -319,6 +338,38 @@ pub(super) async fn get_frame(
     JobId(id): JobId,
     Params(q): Params,
 ) -> Result<Response, ApiError> {
+    let (layer, exr) = frame_params(&q)?;
+    let iteration = iteration_param(&q, exr)?;
+    let ctype = if exr { "image/x-exr" } else { "image/png" };
+    let headers = [
+        (header::CONTENT_TYPE, ctype),
+        (header::CACHE_CONTROL, "no-store"),
+    ];
+    let found = match iteration {
+        Some(n) => st.jobs.iteration_frame(id, n, layer).await?,
+        None => st.jobs.frame(id, layer, exr).await?,
+    };
+    let path = match found {
+        FrameLookup::Found(FrameBytes::Memory(bytes)) => {
+            return Ok((headers, bytes).into_response())
+        }
+        FrameLookup::Found(FrameBytes::File(path)) => path,
+        FrameLookup::NotFound => return Err(ApiError::not_found_job(&id.to_string())),
+        FrameLookup::NoFrame => {
+            return Err(ApiError::new(
+                ErrorCode::NotFound,
+                format!("job {id} has no frame yet"),
+            ))
+        }
+        FrameLookup::NoLayer => return Err(missing_layer(layer)),
+        FrameLookup::NoIteration(kept) => return Err(missing_iteration(iteration, &kept)),
+        FrameLookup::EncodingFailed(e) => return Err(ApiError::internal("encoding a frame", &e)),
+    };
+    stream_file(&path, layer, headers).await
+}
+
+/// The `layer` and `format` query parameters of `GET .../frame` (EXR for the image only).
+fn frame_params(q: &HashMap<String, String>) -> Result<(Layer, bool), ApiError> {
     let layer_name = q.get("layer").map_or("image", String::as_str);
     let Some(layer) = Layer::parse(layer_name) else {
         let names: Vec<&str> = Layer::ALL.iter().map(|l| l.as_str()).collect();
@@ -350,36 +401,19 @@ pub(super) async fn get_frame(
         )
         .at("format"));
     }
-    let iteration = iteration_param(&q, exr)?;
-    let ctype = if exr { "image/x-exr" } else { "image/png" };
-    let headers = [
-        (header::CONTENT_TYPE, ctype),
-        (header::CACHE_CONTROL, "no-store"),
-    ];
-    let found = match iteration {
-        Some(n) => st.jobs.iteration_frame(id, n, layer).await?,
-        None => st.jobs.frame(id, layer, exr).await?,
-    };
-    let path = match found {
-        FrameLookup::Found(FrameBytes::Memory(bytes)) => {
-            return Ok((headers, bytes).into_response())
-        }
-        FrameLookup::Found(FrameBytes::File(path)) => path,
-        FrameLookup::NotFound => return Err(ApiError::not_found_job(&id.to_string())),
-        FrameLookup::NoFrame => {
-            return Err(ApiError::new(
-                ErrorCode::NotFound,
-                format!("job {id} has no frame yet"),
-            ))
-        }
-        FrameLookup::NoLayer => return Err(missing_layer(layer)),
-        FrameLookup::NoIteration(kept) => return Err(missing_iteration(iteration, &kept)),
-        FrameLookup::EncodingFailed(e) => return Err(ApiError::internal("encoding a frame", &e)),
-    };
+    Ok((layer, exr))
+}
+
+/// A stored frame's file as the answer's body.
+async fn stream_file(
+    path: &std::path::Path,
+    layer: Layer,
+    headers: [(header::HeaderName, &'static str); 2],
+) -> Result<Response, ApiError> {
     // Streamed from the file: a request holds a file handle and a small buffer, never the
     // file (a 4096² EXR is 201 MB; one copy per request let 20 clients that did not read
     // hold 3.8 GB).
-    let file = match tokio::fs::File::open(&path).await {
+    let file = match tokio::fs::File::open(path).await {
         Ok(f) => f,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Err(missing_layer(layer)),
         Err(e) => return Err(ApiError::internal("reading a stored frame", &e)),
