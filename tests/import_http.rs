@@ -9,47 +9,6 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// A zip of entries (name, data, unix mode); `deflate` packs them (else stored).
-fn zip(entries: &[(&str, Vec<u8>, u32)], deflate: bool) -> Vec<u8> {
-    let (mut out, mut dir) = (Vec::new(), Vec::new());
-    for (name, data, mode) in entries {
-        let packed = if deflate {
-            miniz_oxide::deflate::compress_to_vec(data, 6)
-        } else {
-            data.clone()
-        };
-        let method: u16 = if deflate { 8 } else { 0 };
-        let at = out.len() as u32;
-        let head = |v: &mut Vec<u8>, central: bool| {
-            v.extend(if central {
-                [0x50, 0x4b, 0x01, 0x02]
-            } else {
-                [0x50, 0x4b, 0x03, 0x04]
-            });
-            if central {
-                v.extend([20, 3]);
-            }
-            v.extend([20, 0, 0, 0]);
-            v.extend(method.to_le_bytes());
-            v.extend([0, 0, 0, 0, 0, 0, 0, 0]); // time, date, crc
-            v.extend((packed.len() as u32).to_le_bytes());
-            v.extend((data.len() as u32).to_le_bytes());
-            v.extend((name.len() as u16).to_le_bytes());
-            v.extend(0u16.to_le_bytes());
-            if central {
-                v.extend([0, 0, 0, 0, 0, 0]);
-                v.extend((mode << 16).to_le_bytes());
-                v.extend(at.to_le_bytes());
-            }
-            v.extend(name.as_bytes());
-        };
-        head(&mut out, false);
-        out.extend(&packed);
-        head(&mut dir, true);
-    }
-    eocd(out, &dir, entries.len() as u16)
-}
-
 fn eocd(mut out: Vec<u8>, dir: &[u8], count: u16) -> Vec<u8> {
     let dir_at = out.len() as u32;
     out.extend(dir);
@@ -110,7 +69,7 @@ fn bidir_bundle(edit: impl Fn(String) -> String, skip: Option<&str>) -> Vec<u8> 
         .iter()
         .map(|(n, d, m)| (n.as_str(), d.clone(), *m))
         .collect();
-    zip(&refs, true)
+    common::zip(&refs, true)
 }
 
 /// 1 GiB of zeros deflated in 1 MiB slices (never held whole): about 1 MiB packed.
@@ -139,7 +98,7 @@ fn zip_bomb() -> Vec<u8> {
         }
     }
     // A stored-entry zip, then the directory says deflate and 1 GiB.
-    let mut z = zip(&[("scene.pbrt", packed.clone(), 0o100_644)], false);
+    let mut z = common::zip(&[("scene.pbrt", packed.clone(), 0o100_644)], false);
     let d = z
         .windows(4)
         .rposition(|w| w == [0x50, 0x4b, 0x01, 0x02])
@@ -216,7 +175,7 @@ async fn uploads_render_and_bad_bundles_get_one_clear_4xx() {
     );
     let missing = bidir_bundle(|t| t, Some("models/Mesh007.ply"));
     let absolute = bidir_bundle(|t| t.replace("models/Mesh007.ply", "/etc/passwd"), None);
-    let link = zip(
+    let link = common::zip(
         &[
             ("scene.pbrt", b"WorldBegin".to_vec(), 0o100_644),
             ("models/a.ply", b"/etc/passwd".to_vec(), 0o120_777),

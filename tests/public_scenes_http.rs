@@ -102,50 +102,6 @@ fn bundle_files(dir: &Path, scene: &Path) -> Vec<(String, Vec<u8>)> {
     out
 }
 
-/// A zip of `entries`, deflated (the same minimal writer as tests/import_http.rs).
-fn zip(entries: &[(String, Vec<u8>)]) -> Vec<u8> {
-    let (mut out, mut dir) = (Vec::new(), Vec::new());
-    for (name, data) in entries {
-        let packed = miniz_oxide::deflate::compress_to_vec(data, 6);
-        let at = out.len() as u32;
-        let head = |v: &mut Vec<u8>, central: bool| {
-            v.extend(if central {
-                [0x50, 0x4b, 0x01, 0x02]
-            } else {
-                [0x50, 0x4b, 0x03, 0x04]
-            });
-            if central {
-                v.extend([20, 3]);
-            }
-            v.extend([20, 0, 0, 0]);
-            v.extend(8u16.to_le_bytes());
-            v.extend([0, 0, 0, 0, 0, 0, 0, 0]); // time, date, crc
-            v.extend((packed.len() as u32).to_le_bytes());
-            v.extend((data.len() as u32).to_le_bytes());
-            v.extend((name.len() as u16).to_le_bytes());
-            v.extend(0u16.to_le_bytes());
-            if central {
-                v.extend([0, 0, 0, 0, 0, 0]);
-                v.extend((0o100_644u32 << 16).to_le_bytes());
-                v.extend(at.to_le_bytes());
-            }
-            v.extend(name.as_bytes());
-        };
-        head(&mut out, false);
-        out.extend(&packed);
-        head(&mut dir, true);
-    }
-    let dir_at = out.len() as u32;
-    out.extend(&dir);
-    out.extend([0x50, 0x4b, 0x05, 0x06, 0, 0, 0, 0]);
-    out.extend((entries.len() as u16).to_le_bytes());
-    out.extend((entries.len() as u16).to_le_bytes());
-    out.extend((dir.len() as u32).to_le_bytes());
-    out.extend(dir_at.to_le_bytes());
-    out.extend([0, 0]);
-    out
-}
-
 fn assert_no_mistake(what: &str, warnings: &[String]) {
     for w in warnings {
         assert!(
@@ -172,7 +128,12 @@ async fn every_public_scene_posted_as_a_zip_renders_unchanged() {
             .unwrap()
             .display()
             .to_string();
-        let body = zip(&bundle_files(dir, scene));
+        let files = bundle_files(dir, scene);
+        let entries: Vec<(&str, Vec<u8>, u32)> = files
+            .iter()
+            .map(|(n, d)| (n.as_str(), d.clone(), 0o100_644))
+            .collect();
+        let body = common::zip(&entries, true);
         let t = Instant::now();
         let r = c
             .post(format!("{base}/v1/jobs?spp=2&width=64&height=64"))

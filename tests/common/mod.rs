@@ -333,3 +333,44 @@ pub fn read_exr(path: &Path) -> (Vec<[f32; 3]>, u32, u32) {
     let (w, h) = img.dimensions();
     (img.pixels().map(|p| p.0).collect(), w, h)
 }
+
+/// A zip of entries (name, data, unix mode); `deflate` packs them (else stored).
+pub fn zip(entries: &[(&str, Vec<u8>, u32)], deflate: bool) -> Vec<u8> {
+    let (mut out, mut dir) = (Vec::new(), Vec::new());
+    for (name, data, mode) in entries {
+        let packed = if deflate {
+            miniz_oxide::deflate::compress_to_vec(data, 6)
+        } else {
+            data.clone()
+        };
+        let method: u16 = if deflate { 8 } else { 0 };
+        let at = out.len() as u32;
+        let head = |v: &mut Vec<u8>, central: bool| {
+            v.extend(if central {
+                [0x50, 0x4b, 0x01, 0x02]
+            } else {
+                [0x50, 0x4b, 0x03, 0x04]
+            });
+            if central {
+                v.extend([20, 3]);
+            }
+            v.extend([20, 0, 0, 0]);
+            v.extend(method.to_le_bytes());
+            v.extend([0, 0, 0, 0, 0, 0, 0, 0]); // time, date, crc
+            v.extend((packed.len() as u32).to_le_bytes());
+            v.extend((data.len() as u32).to_le_bytes());
+            v.extend((name.len() as u16).to_le_bytes());
+            v.extend(0u16.to_le_bytes());
+            if central {
+                v.extend([0, 0, 0, 0, 0, 0]);
+                v.extend((mode << 16).to_le_bytes());
+                v.extend(at.to_le_bytes());
+            }
+            v.extend(name.as_bytes());
+        };
+        head(&mut out, false);
+        out.extend(&packed);
+        head(&mut dir, true);
+    }
+    eocd(out, &dir, entries.len() as u16)
+}
