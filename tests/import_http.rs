@@ -9,18 +9,6 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-fn eocd(mut out: Vec<u8>, dir: &[u8], count: u16) -> Vec<u8> {
-    let dir_at = out.len() as u32;
-    out.extend(dir);
-    out.extend([0x50, 0x4b, 0x05, 0x06, 0, 0, 0, 0]);
-    out.extend(count.to_le_bytes());
-    out.extend(count.to_le_bytes());
-    out.extend((dir.len() as u32).to_le_bytes());
-    out.extend(dir_at.to_le_bytes());
-    out.extend(0u16.to_le_bytes());
-    out
-}
-
 /// A lit triangle as a `.glb`; `count` is its POSITION accessor's count (3 is honest).
 fn glb(count: u64) -> Vec<u8> {
     let mut bin = Vec::new();
@@ -182,7 +170,7 @@ async fn uploads_render_and_bad_bundles_get_one_clear_4xx() {
         ],
         false,
     );
-    let mut zip64 = eocd(Vec::new(), &[], 0);
+    let mut zip64 = common::eocd(Vec::new(), &[], 0);
     let n = zip64.len();
     zip64[n - 12..n - 10].copy_from_slice(&0xffffu16.to_le_bytes());
     let glb_bytes = glb(3);

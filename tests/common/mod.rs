@@ -374,3 +374,16 @@ pub fn zip(entries: &[(&str, Vec<u8>, u32)], deflate: bool) -> Vec<u8> {
     }
     eocd(out, &dir, entries.len() as u16)
 }
+
+/// `out` with the central directory `dir` of `count` entries and its end record appended.
+pub fn eocd(mut out: Vec<u8>, dir: &[u8], count: u16) -> Vec<u8> {
+    let dir_at = out.len() as u32;
+    out.extend(dir);
+    out.extend([0x50, 0x4b, 0x05, 0x06, 0, 0, 0, 0]);
+    out.extend(count.to_le_bytes());
+    out.extend(count.to_le_bytes());
+    out.extend((dir.len() as u32).to_le_bytes());
+    out.extend(dir_at.to_le_bytes());
+    out.extend(0u16.to_le_bytes());
+    out
+}
