@@ -16,7 +16,7 @@ pub struct AppState {
     /// Fires on shutdown: open streams close.
     pub stop: CancellationToken,
     pub max_body_bytes: usize,
-    /// [`REQUEST_DEADLINE`] unless a test shortens it.
+    /// `http::REQUEST_DEADLINE` unless a test shortens it.
     pub request_deadline: std::time::Duration,
     pub max_watchers: usize,
     /// Which `Host` and `Origin` name this server (checked only without a token).
