@@ -366,9 +366,9 @@ impl Gltf<'_> {
         }
     }
 
+    /// Each triangle primitive of `mesh` placed by `world` (other modes are skipped with
+    /// a warning).
     fn mesh(&mut self, mesh: &gltf::Mesh, world: &Mat4) -> Result<(), ImportError> {
-        let normal_m = Mat3::from_mat4(*world).inverse().transpose();
-        let mirrors = Mat3::from_mat4(*world).determinant() < 0.0;
         for prim in mesh.primitives() {
             let p = format!("/meshes/{}/primitives/{}", mesh.index(), prim.index());
             if prim.mode() != gltf::mesh::Mode::Triangles {
@@ -379,107 +379,141 @@ impl Gltf<'_> {
                 ));
                 continue;
             }
-            let pos_acc = prim
-                .get(&gltf::Semantic::Positions)
-                .ok_or_else(|| self.at(&format!("{p}/attributes"), "has no POSITION"))?;
-            let positions = self.vec3s(&pos_acc, &format!("{p}/attributes/POSITION"))?;
-            let normals = match prim.get(&gltf::Semantic::Normals) {
-                Some(a) => Some(self.vec3s(&a, &format!("{p}/attributes/NORMAL"))?),
-                None => None,
-            };
-            if normals.as_ref().is_some_and(|n| n.len() != positions.len()) {
-                return Err(self.at(
-                    &format!("{p}/attributes/NORMAL"),
-                    "count differs from POSITION's",
-                ));
-            }
-            let n = positions.len();
-            let mut indices = match prim.indices() {
-                Some(a) => self.indices(&a, &format!("{p}/indices"))?,
-                None => (0..n as u32).collect(),
-            };
-            if indices.len() % 3 != 0 {
-                return Err(self.at(
-                    &format!("{p}/indices"),
-                    format!("{} indices is not a multiple of 3", indices.len()),
-                ));
-            }
-            if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
-                return Err(self.at(
-                    &format!("{p}/indices"),
-                    format!("index {bad} is out of range: {n} vertices"),
-                ));
-            }
-            self.triangles += indices.len() / 3;
-            if self.triangles > self.limits.max_triangles {
-                return Err(ImportError::limit(
-                    format!("{}: {p}", self.name),
-                    format!(
-                        "more than the limit of {} triangles",
-                        self.limits.max_triangles
-                    ),
-                ));
-            }
-            if mirrors {
-                // Keep the winding's normal the transformed normal (front faces stay front).
-                for t in indices.chunks_exact_mut(3) {
-                    t.swap(1, 2);
-                }
-            }
-            // Texture coordinates only where the material maps an image with them.
-            let uv_set = prim
-                .material()
-                .pbr_metallic_roughness()
-                .base_color_texture()
-                .filter(|_| prim.material().emissive_factor() == [0.0; 3])
-                .map(|t| t.tex_coord());
-            let uvs = match uv_set
-                .and_then(|set| prim.get(&gltf::Semantic::TexCoords(set)).map(|a| (set, a)))
-            {
-                Some((set, a)) => {
-                    let uvs = self.vec2s(&a, &format!("{p}/attributes/TEXCOORD_{set}"))?;
-                    if uvs.len() != n {
-                        return Err(self.at(
-                            &format!("{p}/attributes/TEXCOORD_{set}"),
-                            "count differs from POSITION's",
-                        ));
-                    }
-                    Some(uvs)
-                }
-                None => {
-                    if let Some(set) = uv_set {
-                        self.warnings.push(format!(
-                            "{}: {p}/attributes: no TEXCOORD_{set} for the material's base colour texture: its corner texel everywhere",
-                            self.name
-                        ));
-                    }
-                    None
-                }
-            };
-            let material = self.material(prim.material())?;
-            let normals = normals.map(|ns| {
-                ns.iter()
-                    .map(|&n| (normal_m * Vec3::from(n)).normalize_or_zero())
-                    .collect::<Vec<_>>()
-            });
-            self.objects.push(ObjectDoc::Mesh(MeshDoc {
-                positions: positions
-                    .iter()
-                    .map(|&q| world.transform_point3(Vec3::from(q)).to_array())
-                    .collect(),
-                indices: indices
-                    .chunks_exact(3)
-                    .map(|t| [t[0], t[1], t[2]].map(u64::from))
-                    .collect(),
-                normals: normals
-                    .filter(|ns| ns.iter().all(|n| n.length_squared() > 0.0))
-                    .map(|ns| ns.iter().map(|n| n.to_array()).collect()),
-                uvs,
-                material,
-                transform: None,
-            }));
+            self.primitive(&prim, &p, world)?;
         }
         Ok(())
+    }
+
+    /// One triangle primitive (JSON pointer `p`) as a document mesh in world space, its
+    /// winding kept front-facing when `world` mirrors.
+    fn primitive(
+        &mut self,
+        prim: &gltf::Primitive,
+        p: &str,
+        world: &Mat4,
+    ) -> Result<(), ImportError> {
+        let normal_m = Mat3::from_mat4(*world).inverse().transpose();
+        let mirrors = Mat3::from_mat4(*world).determinant() < 0.0;
+        let pos_acc = prim
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| self.at(&format!("{p}/attributes"), "has no POSITION"))?;
+        let positions = self.vec3s(&pos_acc, &format!("{p}/attributes/POSITION"))?;
+        let normals = match prim.get(&gltf::Semantic::Normals) {
+            Some(a) => Some(self.vec3s(&a, &format!("{p}/attributes/NORMAL"))?),
+            None => None,
+        };
+        if normals.as_ref().is_some_and(|n| n.len() != positions.len()) {
+            return Err(self.at(
+                &format!("{p}/attributes/NORMAL"),
+                "count differs from POSITION's",
+            ));
+        }
+        let n = positions.len();
+        let mut indices = self.triangles_of(prim, p, n)?;
+        if mirrors {
+            // Keep the winding's normal the transformed normal (front faces stay front).
+            for t in indices.chunks_exact_mut(3) {
+                t.swap(1, 2);
+            }
+        }
+        let uvs = self.primitive_uvs(prim, p, n)?;
+        let material = self.material(prim.material())?;
+        let normals = normals.map(|ns| {
+            ns.iter()
+                .map(|&n| (normal_m * Vec3::from(n)).normalize_or_zero())
+                .collect::<Vec<_>>()
+        });
+        self.objects.push(ObjectDoc::Mesh(MeshDoc {
+            positions: positions
+                .iter()
+                .map(|&q| world.transform_point3(Vec3::from(q)).to_array())
+                .collect(),
+            indices: indices
+                .chunks_exact(3)
+                .map(|t| [t[0], t[1], t[2]].map(u64::from))
+                .collect(),
+            normals: normals
+                .filter(|ns| ns.iter().all(|n| n.length_squared() > 0.0))
+                .map(|ns| ns.iter().map(|n| n.to_array()).collect()),
+            uvs,
+            material,
+            transform: None,
+        }));
+        Ok(())
+    }
+
+    /// A primitive's indices (0..n without an accessor), checked against its `n`
+    /// vertices and counted against the triangle limit.
+    fn triangles_of(
+        &mut self,
+        prim: &gltf::Primitive,
+        p: &str,
+        n: usize,
+    ) -> Result<Vec<u32>, ImportError> {
+        let indices = match prim.indices() {
+            Some(a) => self.indices(&a, &format!("{p}/indices"))?,
+            None => (0..n as u32).collect(),
+        };
+        if indices.len() % 3 != 0 {
+            return Err(self.at(
+                &format!("{p}/indices"),
+                format!("{} indices is not a multiple of 3", indices.len()),
+            ));
+        }
+        if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
+            return Err(self.at(
+                &format!("{p}/indices"),
+                format!("index {bad} is out of range: {n} vertices"),
+            ));
+        }
+        self.triangles += indices.len() / 3;
+        if self.triangles > self.limits.max_triangles {
+            return Err(ImportError::limit(
+                format!("{}: {p}", self.name),
+                format!(
+                    "more than the limit of {} triangles",
+                    self.limits.max_triangles
+                ),
+            ));
+        }
+        Ok(indices)
+    }
+
+    /// Texture coordinates only where the material maps an image with them; a missing
+    /// set is a warning (the texture's corner texel everywhere).
+    fn primitive_uvs(
+        &mut self,
+        prim: &gltf::Primitive,
+        p: &str,
+        n: usize,
+    ) -> Result<Option<Vec<[f32; 2]>>, ImportError> {
+        let uv_set = prim
+            .material()
+            .pbr_metallic_roughness()
+            .base_color_texture()
+            .filter(|_| prim.material().emissive_factor() == [0.0; 3])
+            .map(|t| t.tex_coord());
+        match uv_set.and_then(|set| prim.get(&gltf::Semantic::TexCoords(set)).map(|a| (set, a))) {
+            Some((set, a)) => {
+                let uvs = self.vec2s(&a, &format!("{p}/attributes/TEXCOORD_{set}"))?;
+                if uvs.len() != n {
+                    return Err(self.at(
+                        &format!("{p}/attributes/TEXCOORD_{set}"),
+                        "count differs from POSITION's",
+                    ));
+                }
+                Ok(Some(uvs))
+            }
+            None => {
+                if let Some(set) = uv_set {
+                    self.warnings.push(format!(
+                        "{}: {p}/attributes: no TEXCOORD_{set} for the material's base colour texture: its corner texel everywhere",
+                        self.name
+                    ));
+                }
+                Ok(None)
+            }
+        }
     }
 
     /// The bytes of accessor `a` as (data, offset, stride, count), every element checked to

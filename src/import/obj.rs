@@ -19,12 +19,63 @@ use crate::scene::doc::{
     ObjectDoc, SceneDoc, TextureDoc,
 };
 
+/// Imports the OBJ `bytes` (the contents of `name`), its MTL read through `files`.
 pub fn import(
     name: &str,
     bytes: &[u8],
     files: &dyn FileSource,
     limits: &ImportLimits,
 ) -> Result<Imported, ImportError> {
+    let (models, mats, mut warnings) = load(name, bytes, files, limits)?;
+    let (mut materials, names) = materials(name, &mats, files, limits, &mut warnings)?;
+    let mut objects = Vec::new();
+    let mut triangles = 0usize;
+    for model in &models {
+        let mesh = &model.mesh;
+        triangles += mesh.indices.len() / 3;
+        if triangles > limits.max_triangles {
+            return Err(ImportError::limit(
+                name,
+                format!("more than the limit of {} triangles", limits.max_triangles),
+            ));
+        }
+        let material = match mesh.material_id.and_then(|i| names.get(i)) {
+            Some(n) => n.clone(),
+            None => {
+                materials
+                    .entry("default".into())
+                    .or_insert(MaterialDoc::Diffuse(DiffuseDoc {
+                        albedo: Some([0.5; 3]),
+                        texture: None,
+                    }));
+                "default".into()
+            }
+        };
+        objects.push(mesh_object(mesh, material));
+    }
+    let camera = CameraDoc {
+        position: [0.0; 3],
+        look_at: [0.0, 0.0, -1.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y: 0.0,
+    };
+    let doc = SceneDoc {
+        materials,
+        objects,
+        ..super::document(name, 512, 512, camera)
+    };
+    Ok(Imported { doc, warnings })
+}
+
+/// The OBJ's models (triangulated, one index per vertex) and its MTL's materials, with a
+/// warning for each `mtllib` that cannot be read (grey diffuse materials instead).
+#[allow(clippy::type_complexity)]
+fn load(
+    name: &str,
+    bytes: &[u8],
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>, Vec<String>), ImportError> {
     let opts = tobj::LoadOptions {
         single_index: true,
         triangulate: true,
@@ -54,6 +105,18 @@ pub fn import(
         ));
         Vec::new()
     });
+    Ok((models, mats, warnings))
+}
+
+/// The MTL's materials as document materials by key (the MTL name, or `material-i`
+/// when it has none), and the keys in the MTL's order (a mesh's `material_id` indexes it).
+fn materials(
+    name: &str,
+    mats: &[tobj::Material],
+    files: &dyn FileSource,
+    limits: &ImportLimits,
+    warnings: &mut Vec<String>,
+) -> Result<(BTreeMap<String, MaterialDoc>, Vec<String>), ImportError> {
     let mut materials = BTreeMap::new();
     let mut names = Vec::with_capacity(mats.len());
     for (i, m) in mats.iter().enumerate() {
@@ -62,86 +125,56 @@ pub fn import(
         } else {
             m.name.clone()
         };
-        let mut doc = material(name, m, &mut warnings);
+        let mut doc = material(name, m, warnings);
         if let Some(map) = &m.diffuse_texture {
-            diffuse_map(name, &mut doc, m, map, files, limits, &mut warnings)?;
+            diffuse_map(name, &mut doc, m, map, files, limits, warnings)?;
         }
         materials.insert(key.clone(), doc);
         names.push(key);
     }
-    let mut objects = Vec::new();
-    let mut triangles = 0usize;
-    for model in &models {
-        let mesh = &model.mesh;
-        triangles += mesh.indices.len() / 3;
-        if triangles > limits.max_triangles {
-            return Err(ImportError::limit(
-                name,
-                format!("more than the limit of {} triangles", limits.max_triangles),
-            ));
-        }
-        let material = match mesh.material_id.and_then(|i| names.get(i)) {
-            Some(n) => n.clone(),
-            None => {
-                materials
-                    .entry("default".into())
-                    .or_insert(MaterialDoc::Diffuse(DiffuseDoc {
-                        albedo: Some([0.5; 3]),
-                        texture: None,
-                    }));
-                "default".into()
-            }
-        };
-        let positions: Vec<[f32; 3]> = mesh
-            .positions
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let normals = (mesh.normals.len() == mesh.positions.len() && !mesh.normals.is_empty())
-            .then(|| {
-                mesh.normals
-                    .chunks_exact(3)
-                    .map(|c| [c[0], c[1], c[2]])
-                    .collect::<Vec<_>>()
-            })
-            .filter(|ns| {
-                ns.iter()
-                    .all(|n| n.iter().any(|c| *c != 0.0) && n.iter().all(|c| c.is_finite()))
-            });
-        // OBJ's `vt` has v growing upwards; the document's image t grows downwards.
-        let uvs = (mesh.texcoords.len() / 2 == positions.len() && !mesh.texcoords.is_empty())
-            .then(|| {
-                mesh.texcoords
-                    .chunks_exact(2)
-                    .map(|c| [c[0], 1.0 - c[1]])
-                    .collect::<Vec<_>>()
-            })
-            .filter(|uv| uv.iter().flatten().all(|c| c.is_finite()));
-        objects.push(ObjectDoc::Mesh(MeshDoc {
-            positions,
-            uvs,
-            indices: mesh
-                .indices
+    Ok((materials, names))
+}
+
+/// One OBJ mesh as a document mesh: its normals only when every vertex has a usable one,
+/// its `vt` only when every vertex has one.
+fn mesh_object(mesh: &tobj::Mesh, material: String) -> ObjectDoc {
+    let positions: Vec<[f32; 3]> = mesh
+        .positions
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let normals = (mesh.normals.len() == mesh.positions.len() && !mesh.normals.is_empty())
+        .then(|| {
+            mesh.normals
                 .chunks_exact(3)
-                .map(|t| [t[0], t[1], t[2]].map(u64::from))
-                .collect(),
-            normals,
-            material,
-            transform: None,
-        }));
-    }
-    let camera = CameraDoc {
-        position: [0.0; 3],
-        look_at: [0.0, 0.0, -1.0],
-        up: [0.0, 1.0, 0.0],
-        fov_y: 0.0,
-    };
-    let doc = SceneDoc {
-        materials,
-        objects,
-        ..super::document(name, 512, 512, camera)
-    };
-    Ok(Imported { doc, warnings })
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>()
+        })
+        .filter(|ns| {
+            ns.iter()
+                .all(|n| n.iter().any(|c| *c != 0.0) && n.iter().all(|c| c.is_finite()))
+        });
+    // OBJ's `vt` has v growing upwards; the document's image t grows downwards.
+    let uvs = (mesh.texcoords.len() / 2 == positions.len() && !mesh.texcoords.is_empty())
+        .then(|| {
+            mesh.texcoords
+                .chunks_exact(2)
+                .map(|c| [c[0], 1.0 - c[1]])
+                .collect::<Vec<_>>()
+        })
+        .filter(|uv| uv.iter().flatten().all(|c| c.is_finite()));
+    ObjectDoc::Mesh(MeshDoc {
+        positions,
+        uvs,
+        indices: mesh
+            .indices
+            .chunks_exact(3)
+            .map(|t| [t[0], t[1], t[2]].map(u64::from))
+            .collect(),
+        normals,
+        material,
+        transform: None,
+    })
 }
 
 /// A diffuse material's `map_Kd` (an sRGB image, multiplied by Kd as the MTL format says),
