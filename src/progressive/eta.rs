@@ -23,9 +23,9 @@
 //!
 //! Before two distances exist there is no decay to fit, so the first two frames get an
 //! estimate from the time so far, honestly wide: after the first frame (no distance yet)
-//! [`FIRST_FRAME_FACTOR`] times the time so far, within ÷2 and ×2.5; after the second (one
-//! distance `d`) [`ONE_DISTANCE_FACTOR`] · elapsed · max(ln(d / t0), ½), within ×0.5 and
-//! ×1.5: the iterations still needed grow as ln(d / t0) (a geometric decay). These
+//! [`FIRST_FRAME_FACTOR`] times the time so far; after the second (one distance `d`)
+//! [`ONE_DISTANCE_FACTOR`] · elapsed · max(ln(d / t0), ½): the iterations still needed
+//! grow as ln(d / t0) (a geometric decay); each within its stage's [`Spread`]. These
 //! constants are calibrated on the traces of the bundled scenes and of an 8-scene
 //! generated corpus together (`ETA_TRACE=FILE cargo bench --bench eta` writes every frame)
 //! and checked on a second corpus (`GLIMPSE_ETA_SEED=2`). With `t0 = 0` ("every pixel
@@ -79,7 +79,7 @@ pub struct Spread {
 /// The share of the tuning set's estimates left outside each stage's [`Spread`] (half below,
 /// half above): the largest share (so the narrowest range) for which the range contains
 /// the time left in at least 80 % of the cells on the bundled scenes (95.6 %) and on the
-/// tuning corpus (81.2 %, against 78.1 % at 0.12). About 12 % of the corpus's cells can
+/// tuning corpus (81.2 %, against 79.2 % at 0.10). About 12 % of the corpus's cells can
 /// never be covered by a range (no frame yet at 25 % of a short run, "finishing" with more
 /// than 1.5 iterations left), so the stages' ranges must hold ~92 % of their own cells.
 pub const SPREAD_TAILS: f64 = 0.08;
