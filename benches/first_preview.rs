@@ -57,7 +57,9 @@ async fn start(data: &std::path::Path, c: &reqwest::Client) -> (Server, String) 
         .and_then(|l| l.local_addr())
         .expect("a free port")
         .port();
-    let child = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+    let bin = std::env::var_os("GLIMPSE_BENCH_BIN")
+        .unwrap_or_else(|| env!("CARGO_BIN_EXE_glimpse").into());
+    let child = Command::new(bin)
         .args(["serve", "--addr", &format!("127.0.0.1:{port}"), "--data"])
         .arg(data)
         .env_remove("GLIMPSE_TOKEN")

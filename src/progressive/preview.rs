@@ -138,13 +138,25 @@ impl Grid {
             (k, (k + 1).min(count - 1), t.clamp(0.0, 1.0))
         };
         let columns: Vec<(usize, usize, f32)> = (0..w).map(|x| axis(x, self.w, self.nx)).collect();
+        // Each grid row interpolated along x once (ny × w values), then every image row
+        // is one blend of two of them: the same arithmetic, in the same order, as blending
+        // the four corners per pixel, for a third of the work on the path to the first
+        // picture (48 MB written at 2048²).
+        let lines: Vec<Vec<Rgb>> = (0..self.ny)
+            .into_par_iter()
+            .map(|j| {
+                let r = &values[j * self.nx..];
+                columns
+                    .iter()
+                    .map(|&(i0, i1, tx)| r[i0] * (1.0 - tx) + r[i1] * tx)
+                    .collect()
+            })
+            .collect();
         out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let (j0, j1, ty) = axis(y, self.h, self.ny);
-            let (r0, r1) = (&values[j0 * self.nx..], &values[j1 * self.nx..]);
-            for (px, &(i0, i1, tx)) in row.iter_mut().zip(&columns) {
-                let top = r0[i0] * (1.0 - tx) + r0[i1] * tx;
-                let bottom = r1[i0] * (1.0 - tx) + r1[i1] * tx;
-                *px = top * (1.0 - ty) + bottom * ty;
+            let (top, bottom) = (&lines[j0], &lines[j1]);
+            for ((px, &t), &b) in row.iter_mut().zip(top).zip(bottom) {
+                *px = t * (1.0 - ty) + b * ty;
             }
         });
         Image::from_vec(self.w, self.h, out).expect("size matches by construction")
@@ -254,6 +266,53 @@ mod tests {
             img.get(32, 32).max_element() < 3.0,
             "the firefly is capped by its neighbours"
         );
+    }
+
+    #[test]
+    fn interpolation_by_grid_rows_equals_blending_the_four_corners_bit_for_bit() {
+        for (w, h) in [(2048, 2048), (1024, 768), (700, 500), (3, 2), (1, 1)] {
+            let g = Grid::new(w, h);
+            let values: Vec<Rgb> = (0..g.nx * g.ny)
+                .map(|k| {
+                    let k = k as f32;
+                    Rgb::new(
+                        (k * 0.37).sin().abs(),
+                        (k * 1.3).cos().abs() * 3.0,
+                        k * 1e-3,
+                    )
+                })
+                .collect();
+            let img = g.interpolate(&values);
+            let corners = |p: usize, len: u32, count: usize| {
+                let k = (p / g.spacing as usize).min(count.saturating_sub(2));
+                let (a, b) = (g.at(k, len), g.at(k + 1, len));
+                let t = if b > a {
+                    (p as f32 - a as f32) / (b - a) as f32
+                } else {
+                    0.0
+                };
+                (k, (k + 1).min(count - 1), t.clamp(0.0, 1.0))
+            };
+            for (x, y) in [
+                (0, 0),
+                (w - 1, h - 1),
+                (w / 3, h / 2),
+                (w - 1, 0),
+                (w / 7, h - 1),
+            ] {
+                let (i0, i1, tx) = corners(x as usize, w, g.nx);
+                let (j0, j1, ty) = corners(y as usize, h, g.ny);
+                let (r0, r1) = (&values[j0 * g.nx..], &values[j1 * g.nx..]);
+                let top = r0[i0] * (1.0 - tx) + r0[i1] * tx;
+                let bottom = r1[i0] * (1.0 - tx) + r1[i1] * tx;
+                let want = top * (1.0 - ty) + bottom * ty;
+                let got = *img.get(x, y);
+                assert_eq!(
+                    got.to_array().map(f32::to_bits),
+                    want.to_array().map(f32::to_bits)
+                );
+            }
+        }
     }
 
     #[test]

@@ -147,6 +147,27 @@ pub fn encode_png_display(img: &LinearImage, exposure: f32) -> Result<Vec<u8>, C
     )
 }
 
+/// PNG of a smooth picture (the interpolated preview, `progressive::preview`) as a person
+/// sees it on the scene's display: the same pixels as [`encode_png_display`], with the
+/// `Paeth` filter. On a smooth 2048² image fdeflate then finds long matches: 18 ms and
+/// 0.3 MB against 77 ms and 2.9 MB with `Sub` (whose choice suits noisy renders).
+///
+/// The display conversion runs on every core (rayon): the preview is encoded while
+/// nothing else runs, before its watchers are woken.
+pub fn encode_png_display_smooth(img: &LinearImage, exposure: f32) -> Result<Vec<u8>, CodecError> {
+    use rayon::prelude::*;
+    let lut = DisplayLut::get();
+    let mut flat = vec![0u8; img.pixels().len() * 3];
+    flat.par_chunks_mut(3 * 4096)
+        .zip(img.pixels().par_chunks(4096))
+        .for_each(|(o, p)| {
+            for (o, p) in o.chunks_exact_mut(3).zip(p) {
+                o.copy_from_slice(&lut.pixel(*p, exposure));
+            }
+        });
+    encode_png_flat_rgb8(img.width(), img.height(), &flat, FilterType::Paeth)
+}
+
 /// JPEG (baseline, quality `quality` of 100) of a linear image as a person sees it on the
 /// scene's display: the same 8-bit sRGB levels as [`encode_png_display`], lossy.
 pub fn encode_jpeg_display(

@@ -7,7 +7,8 @@ pub mod codec;
 pub mod colormap;
 
 pub use codec::{
-    decode_image, encode_exr, encode_jpeg_display, encode_png_display, encode_png_rgb8, CodecError,
+    decode_image, encode_exr, encode_jpeg_display, encode_png_display, encode_png_display_smooth,
+    encode_png_rgb8, CodecError,
 };
 
 /// Linear RGB with Rec.709/sRGB primaries (scene-format.md "Units").

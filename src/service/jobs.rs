@@ -1290,24 +1290,27 @@ impl<'a> FramePublisher<'a> {
         self.last_pixels = self.last_pixels.max(f.stats.pixels_traced);
         self.count_render_time();
         // The copy (0.1-0.4 ms at 512²) is the only per-frame cost on the render's
-        // thread; the PNG is encoded later, only if someone takes this frame.
-        let lf = Arc::new(LiveFrame::new(
-            f.clone(),
-            self.exposure,
-            progress.clone(),
-            Arc::clone(metrics),
-        ));
+        // thread; the PNG is encoded later, only if someone takes this frame. The
+        // preview is there to be seen at once: its PNG is encoded here, on the render's
+        // thread, before watchers are woken (once per job), rather than by a watcher's
+        // task competing with the render for the cores; its copy waits until after.
+        let lf = Arc::new(if f.preview {
+            LiveFrame::preview(f, self.exposure, progress.clone(), Arc::clone(metrics))
+        } else {
+            LiveFrame::new(
+                f.clone(),
+                self.exposure,
+                progress.clone(),
+                Arc::clone(metrics),
+            )
+        });
         self.keeper.offer(&lf);
         self.latest = Some(Arc::clone(&lf));
         let mut j = self.job.clone();
         j.progress = Some(progress);
         self.live.publish(j, Some(Arc::clone(&lf)));
-        if lf.preview {
-            // The preview is there to be seen at once: its PNG is encoded here, on the
-            // render's thread (~50 ms at 2048², once per job), rather than by a
-            // watcher's task competing with the render for the cores. Watchers woken
-            // by the publish wait for this encoding instead of starting their own.
-            let _ = lf.image_png_blocking();
+        if f.preview {
+            lf.keep_preview_pixels(f);
         }
     }
 

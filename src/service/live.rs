@@ -18,8 +18,10 @@ pub struct LiveFrame {
     /// A preview before the first iteration (`Frame::preview`): image layer only.
     pub preview: bool,
     /// The frame's pixels and layers; `None` for a frame relayed from a worker on
-    /// another node, which carries its image layer's PNG only ([`relay`]).
-    pixels: Option<Frame>,
+    /// another node, which carries its image layer's PNG only ([`relay`]). Set at once,
+    /// except a preview's, set by the render's thread just after it is published
+    /// ([`LiveFrame::preview`]); readers wait for it ([`LiveFrame::pixels`]).
+    pixels: std::sync::OnceLock<Option<Frame>>,
     /// The scene's display exposure, for the `image` layer.
     pub exposure: f32,
     pub progress: Progress,
@@ -59,7 +61,7 @@ impl LiveFrame {
         Self {
             iteration: frame.iteration,
             preview: frame.preview,
-            pixels: Some(frame),
+            pixels: std::sync::OnceLock::from(Some(frame)),
             exposure,
             progress,
             layers,
@@ -67,6 +69,44 @@ impl LiveFrame {
             others: Default::default(),
             metrics,
         }
+    }
+
+    /// A preview frame (`Frame::preview`), its PNG already encoded and its pixels not yet
+    /// copied: the copy (48 MB at 2048², kept for the EXR and for the final files should
+    /// the job stop at the preview) is made after watchers have the PNG, by
+    /// [`LiveFrame::keep_preview_pixels`]. Blocking (the encoding).
+    pub(super) fn preview(
+        frame: &Frame,
+        exposure: f32,
+        progress: Progress,
+        metrics: Arc<Metrics>,
+    ) -> Self {
+        let png = crate::raster::encode_png_display_smooth(&frame.image, exposure)
+            .map(Bytes::from)
+            .map_err(|e| e.to_string());
+        metrics.frames_encoded.fetch_add(1, Ordering::Relaxed);
+        Self {
+            iteration: frame.iteration,
+            preview: true,
+            pixels: std::sync::OnceLock::new(),
+            exposure,
+            progress,
+            layers: vec![Layer::Image],
+            png: std::sync::OnceLock::from(png),
+            others: Default::default(),
+            metrics,
+        }
+    }
+
+    /// Keeps a copy of the preview's pixels (`frame` is the one [`LiveFrame::preview`]
+    /// was made of); readers waiting for them go on.
+    pub(super) fn keep_preview_pixels(&self, frame: &Frame) {
+        let _ = self.pixels.set(Some(frame.clone()));
+    }
+
+    /// The frame's pixels (`None` for a relayed frame), waiting for a preview's copy.
+    fn pixels(&self) -> Option<&Frame> {
+        self.pixels.wait().as_ref()
     }
 
     /// The PNG of the image layer, encoded once, off the async runtime.
@@ -104,7 +144,7 @@ impl LiveFrame {
         Self {
             iteration: progress.iteration,
             preview: false,
-            pixels: None,
+            pixels: std::sync::OnceLock::from(None),
             exposure: 1.0,
             progress,
             layers,
@@ -116,19 +156,19 @@ impl LiveFrame {
 
     /// True for the last frame of a render that ran to its end.
     pub fn is_last(&self) -> bool {
-        self.pixels.as_ref().is_some_and(|f| f.last)
+        // A preview, whose pixels may still be on their way, is never the last frame.
+        matches!(self.pixels.get(), Some(Some(f)) if f.last)
     }
 
     /// Pixels of the frame this node rendered (0 for a relayed one).
     pub fn pixel_count(&self) -> usize {
-        self.pixels
-            .as_ref()
+        self.pixels()
             .map_or(0, |f| f.image.width() as usize * f.image.height() as usize)
     }
 
     /// Encodes one layer as PNG (`None` if the frame lacks it). Blocking.
     pub fn encode_layer_blocking(&self, layer: Layer) -> Result<Option<Vec<u8>>, String> {
-        let Some(frame) = &self.pixels else {
+        let Some(frame) = self.pixels() else {
             return Ok(None);
         };
         layers::encode_layer(frame, layer.as_str(), self.exposure).map_err(|e| e.to_string())
@@ -145,7 +185,7 @@ impl LiveFrame {
         };
         self.others[k]
             .get_or_init(|| {
-                let bytes = match (&self.pixels, exr) {
+                let bytes = match (self.pixels(), exr) {
                     (None, _) => Ok(None),
                     (Some(frame), true) => crate::raster::encode_exr(&frame.image)
                         .map(Some)
