@@ -1125,7 +1125,7 @@ fn run_job(inner: &Arc<Inner>, live: &Arc<LiveJob>, job: JobRecord, token: Lease
 
 /// What a job renders: the scene its submission already parsed, or its document.
 enum SceneInput {
-    Parsed(crate::scene::Scene),
+    Parsed(Box<crate::scene::Scene>),
     Document(String),
 }
 
@@ -1133,7 +1133,7 @@ enum SceneInput {
 /// store cannot say).
 fn load_scene(inner: &Arc<Inner>, id: Uuid) -> Option<SceneInput> {
     if let Some(s) = inner.take_parsed(id) {
-        return Some(SceneInput::Parsed(s));
+        return Some(SceneInput::Parsed(Box::new(s)));
     }
     match inner.rt.block_on(inner.store.scene(id)) {
         Ok(Some(s)) => Some(SceneInput::Document(s)),
@@ -1219,7 +1219,7 @@ fn scene_of(
     input: SceneInput,
 ) -> Result<crate::scene::Scene, Outcome> {
     let json = match input {
-        SceneInput::Parsed(s) => return Ok(s),
+        SceneInput::Parsed(s) => return Ok(*s),
         SceneInput::Document(json) => json,
     };
     let limits = inner.limits;
