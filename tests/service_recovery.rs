@@ -79,41 +79,6 @@ async fn until_healthy(c: &reqwest::Client, base: &str, within: Duration) {
     }
 }
 
-/// A tmpfs of `size` mounted at `at`, unmounted when dropped; `None` where mounting is
-/// not allowed (not root).
-struct Tmpfs(PathBuf);
-
-impl Tmpfs {
-    fn mount(at: &Path, size: &str) -> Option<Self> {
-        std::fs::create_dir_all(at).ok()?;
-        let ok = Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
-            .arg(at)
-            .stderr(std::process::Stdio::null())
-            .status()
-            .ok()?
-            .success();
-        ok.then(|| Self(at.to_owned()))
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
-    }
-}
-
-/// Writes `path` until its filesystem is full.
-fn fill(path: &Path) {
-    use std::io::Write;
-    let mut f = std::fs::File::create(path).unwrap();
-    let block = vec![0xA5u8; 64 * 1024];
-    while f.write_all(&block).and_then(|()| f.flush()).is_ok() {}
-    let small = [0u8; 512];
-    while f.write_all(&small).is_ok() {}
-    let _ = f.sync_all();
-}
-
 /// The disk fills while jobs wait (the claims' COMMITs fail), then space returns: every
 /// queued job starts and ends with its image, `/healthz` is 200 again, new work runs,
 /// and no connection was ever left inside a transaction. `full` makes the disk full (and
@@ -210,7 +175,7 @@ async fn a_claim_whose_commit_fails_leaves_no_connection_stuck() {
 async fn claims_resume_when_a_real_full_disk_gets_space_back() {
     let dir = tempfile::tempdir().unwrap();
     let rules = dir.path().join("faults");
-    let Some(fs) = Tmpfs::mount(&dir.path().join("mnt"), "20m") else {
+    let Some(fs) = common::Tmpfs::mount(&dir.path().join("mnt"), "20m") else {
         eprintln!("cannot mount a tmpfs here (needs root): the injected fault instead");
         claims_resume_after_a_full_disk(
             &dir.path().join("data"),
@@ -252,7 +217,7 @@ async fn claims_resume_when_a_real_full_disk_gets_space_back() {
         queued.push(submit(&c, &base, &small(&format!("queued-{k}"), 10 + k)).await);
     }
     let filler = fs.0.join("filler");
-    fill(&filler);
+    common::fill(&filler);
     let f = std::fs::OpenOptions::new()
         .write(true)
         .open(&filler)

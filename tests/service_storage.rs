@@ -11,47 +11,7 @@ mod common;
 
 use common::{free_port, submit, wait_state};
 use serde_json::Value;
-use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant};
-
-/// A tmpfs mounted for the test, unmounted when dropped.
-struct Tmpfs(PathBuf);
-
-impl Tmpfs {
-    fn mount(at: &Path, size: &str) -> Option<Self> {
-        std::fs::create_dir_all(at).ok()?;
-        let ok = Command::new("mount")
-            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
-            .arg(at)
-            .status()
-            .ok()?
-            .success();
-        ok.then(|| Self(at.to_owned()))
-    }
-}
-
-impl Drop for Tmpfs {
-    fn drop(&mut self) {
-        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
-    }
-}
-
-/// Writes `path` until the filesystem is full.
-fn fill(path: &Path) {
-    let mut f = std::fs::File::create(path).unwrap();
-    let block = vec![0xA5u8; 64 * 1024];
-    loop {
-        if f.write_all(&block).and_then(|()| f.flush()).is_err() {
-            break;
-        }
-    }
-    // The last partial blocks too.
-    let small = [0u8; 512];
-    while f.write_all(&small).is_ok() {}
-    let _ = f.sync_all();
-}
 
 /// A valid scene whose document is ~`kb` KB (a mesh of many small triangles): storing it
 /// needs fresh pages in the database.
@@ -79,7 +39,7 @@ fn bulky_scene(name: &str, kb: usize) -> Value {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_disk_ends_cleanly_and_work_resumes_when_space_returns() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(fs) = Tmpfs::mount(&dir.path().join("mnt"), "24m") else {
+    let Some(fs) = common::Tmpfs::mount(&dir.path().join("mnt"), "24m") else {
         eprintln!("SKIPPED: cannot mount a tmpfs here (needs root); storage faults not tested");
         return;
     };
@@ -100,7 +60,7 @@ async fn a_full_disk_ends_cleanly_and_work_resumes_when_space_returns() {
     tokio::time::sleep(Duration::from_millis(500)).await;
 
     let filler = fs.0.join("filler");
-    fill(&filler);
+    common::fill(&filler);
     // A submission that needs space: 503 with Retry-After, in the error shape.
     let r = c
         .post(format!("{base}/v1/jobs"))
@@ -142,7 +102,7 @@ async fn a_full_disk_ends_cleanly_and_work_resumes_when_space_returns() {
 
     // Full again; a small job may still be accepted (the database reuses its pages), but
     // then it must not claim success without its image while the disk stays full.
-    fill(&fs.0.join("filler2"));
+    common::fill(&fs.0.join("filler2"));
     let r = c
         .post(format!("{base}/v1/jobs"))
         .json(&common::sphere_scene("during", 64, 64, "reference", 1, 2))

@@ -95,24 +95,25 @@ async fn a_jobs_scene_comes_back_as_written_and_warnings_come_with_the_201() {
     assert!(w.contains("objects[2]") && w.contains("faces away"), "{w}");
 }
 
+/// `glimpse render SCENE` in `dir` (to `out.png`, with `args`), which must succeed: its
+/// stderr, where the warnings go.
+fn render_stderr(dir: &std::path::Path, scene: &str, args: &[&str]) -> String {
+    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(dir)
+        .args(["render", scene, "--output", "out.png"])
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
 #[test]
 fn the_command_line_prints_scene_warnings_on_stderr() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("away.json"), lamp_facing_away()).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .current_dir(dir.path())
-        .args([
-            "render",
-            "away.json",
-            "--output",
-            "away.png",
-            "--mode",
-            "reference",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success());
-    let err = String::from_utf8_lossy(&o.stderr);
+    let err = render_stderr(dir.path(), "away.json", &["--mode", "reference"]);
     assert!(
         err.lines()
             .any(|l| l.starts_with("warning: objects[2]") && l.contains("faces away")),
@@ -379,13 +380,7 @@ fn the_command_line_names_a_lamp_facing_out_of_an_open_room() {
         lamp_facing_out_of_an_open_room(),
     )
     .unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
-        .current_dir(dir.path())
-        .args(["render", "open.json", "--output", "open.png"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let err = String::from_utf8_lossy(&o.stderr);
+    let err = render_stderr(dir.path(), "open.json", &[]);
     assert!(
         err.lines()
             .any(|l| l.starts_with("warning: objects[5]: only") && l.contains("which way it faces")),

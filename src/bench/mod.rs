@@ -674,11 +674,12 @@ impl<'a> Rows<'a> {
         })
     }
 
-    /// A row with every pixel traced (the reference, or uniform at `spp`).
+    /// A row with every pixel traced (the reference, or uniform at `spp`), whose FLIP
+    /// against the independent reference is `flip`.
     fn traced_whole(
         &self,
         method: &str,
-        img: &LinearImage,
+        (img, flip): (&LinearImage, FlipScore),
         ms: f64,
         spp: u32,
     ) -> anyhow::Result<MethodResult> {
@@ -689,26 +690,21 @@ impl<'a> Rows<'a> {
             pixels_traced: u64::from(self.scene.width) * u64::from(self.scene.height),
             pixel_fraction: 1.0,
             spp: Some(spp),
-            flip: self.flip(img),
+            flip,
             converged_flip: self.converged_flip(img),
             glimpse_distance: self.glimpse_distance(img)?,
             overhead_share: None,
         })
     }
 
+    /// The reference's row: its FLIP is the noise floor, already measured.
     fn reference(&self, img: &LinearImage) -> anyhow::Result<MethodResult> {
-        let mut row = self.traced_whole(
-            "reference",
-            img,
-            self.reference_ms,
-            self.scene.render.samples_per_pixel,
-        )?;
-        row.flip = self.noise_floor;
-        Ok(row)
+        let spp = self.scene.render.samples_per_pixel;
+        self.traced_whole("reference", (img, self.noise_floor), self.reference_ms, spp)
     }
 
     fn uniform(&self, img: &LinearImage, spp: u32, ms: f64) -> anyhow::Result<MethodResult> {
-        self.traced_whole("uniform (equal time)", img, ms, spp)
+        self.traced_whole("uniform (equal time)", (img, self.flip(img)), ms, spp)
     }
 
     /// A row for a run of the progressive loop (progressive, uncompensated, Guo).

@@ -387,3 +387,38 @@ pub fn eocd(mut out: Vec<u8>, dir: &[u8], count: u16) -> Vec<u8> {
     out.extend(0u16.to_le_bytes());
     out
 }
+
+/// A tmpfs of `size` mounted at `at` (`.0`), unmounted when dropped; `None` where mounting
+/// is not allowed (not root).
+pub struct Tmpfs(pub std::path::PathBuf);
+
+impl Tmpfs {
+    pub fn mount(at: &Path, size: &str) -> Option<Self> {
+        std::fs::create_dir_all(at).ok()?;
+        let ok = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(at)
+            .stderr(Stdio::null())
+            .status()
+            .ok()?
+            .success();
+        ok.then(|| Self(at.to_owned()))
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
+
+/// Writes `path` until its filesystem is full, the last partial blocks too.
+pub fn fill(path: &Path) {
+    use std::io::Write;
+    let mut f = std::fs::File::create(path).unwrap();
+    let block = vec![0xA5u8; 64 * 1024];
+    while f.write_all(&block).and_then(|()| f.flush()).is_ok() {}
+    let small = [0u8; 512];
+    while f.write_all(&small).is_ok() {}
+    let _ = f.sync_all();
+}
