@@ -463,4 +463,57 @@ mod tests {
             assert!(parse_ppd(bad).is_err(), "{bad}");
         }
     }
+
+    /// Each `--max-*` flag sets its own limit and no other (the 422 tests reach two of
+    /// them through a real server).
+    #[test]
+    fn each_serve_limit_flag_sets_its_own_limit() {
+        let cli = Cli::try_parse_from([
+            "glimpse",
+            "serve",
+            "--max-pixels",
+            "1",
+            "--max-width",
+            "2",
+            "--max-height",
+            "3",
+            "--max-spp",
+            "4",
+            "--max-samples",
+            "5",
+            "--max-objects",
+            "6",
+            "--max-triangles",
+            "7",
+            "--max-bounces",
+            "8",
+        ])
+        .unwrap();
+        let Command::Serve(a) = cli.command else {
+            panic!("not serve");
+        };
+        let mut l = crate::service::server_limits();
+        set_limits(&mut l, &a);
+        assert_eq!(
+            (
+                l.max_pixels,
+                l.max_width,
+                l.max_height,
+                l.max_samples_per_pixel,
+                l.max_sample_budget,
+                l.max_objects,
+                l.max_triangles,
+                l.max_bounces
+            ),
+            (1, 2, 3, 4, 5, 6, 7, 8)
+        );
+        // Without the flags the server's defaults stay.
+        let Command::Serve(a) = Cli::try_parse_from(["glimpse", "serve"]).unwrap().command else {
+            panic!("not serve");
+        };
+        let mut l = crate::service::server_limits();
+        set_limits(&mut l, &a);
+        let d = crate::service::server_limits();
+        assert_eq!((l.max_width, l.max_bounces), (d.max_width, d.max_bounces));
+    }
 }
