@@ -12,6 +12,7 @@
 pub mod bench;
 pub mod cancel;
 pub mod cli;
+pub mod denoise;
 pub mod import;
 pub mod metric;
 pub mod progressive;

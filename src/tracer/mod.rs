@@ -12,6 +12,7 @@ use material::Bsdf;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+pub mod aux;
 pub mod bvh;
 pub mod camera;
 pub mod fixtures;
@@ -103,6 +104,44 @@ pub trait PixelOracle: Sync {
     fn footprint_mixed(&self, _p: PixelCoord, _centre: ObjectId) -> bool {
         false
     }
+    /// The denoiser's auxiliary features of pixel `p` ([`aux`]): the albedo and normal of
+    /// what its camera rays first meet that is not a perfect mirror. An oracle that cannot
+    /// tell answers a white albedo and no normal.
+    fn aux_features(&self, _p: PixelCoord) -> AuxFeatures {
+        AuxFeatures {
+            albedo: Rgb::ONE,
+            normal: glam::Vec3::ZERO,
+        }
+    }
+    /// The sum of paths `first .. first + count` of pixel `p`'s sequence under `seed`: a
+    /// pure function of its arguments, so passes that add samples to a pixel in any
+    /// order and on any thread add up to [`PixelOracle::estimate_with`] of the whole
+    /// count. The default derives it from two whole-count estimates (exact oracles and
+    /// test oracles; the path tracer sums the paths themselves).
+    fn sample_sum(&self, p: PixelCoord, first: u32, count: u32, seed: u64) -> SampleSum {
+        let whole = |n: u32| {
+            if n == 0 {
+                return (glam::DVec3::ZERO, glam::DVec3::ZERO);
+            }
+            let e = self.estimate_with(p, n, seed);
+            let k = f64::from(n);
+            let mean = e.radiance.as_dvec3();
+            let var = if e.variance.is_finite() {
+                e.variance.as_dvec3()
+            } else {
+                glam::DVec3::ZERO
+            };
+            (mean * k, var * k * (k - 1.0) + mean * mean * k)
+        };
+        let (s1, q1) = whole(first + count);
+        let (s0, q0) = whole(first);
+        SampleSum {
+            sum: s1 - s0,
+            sum_sq: (q1 - q0).max(glam::DVec3::ZERO),
+            kept: count,
+            rays: 0,
+        }
+    }
     /// [`PixelOracle::footprint_mixed`] and [`PixelOracle::texture_albedo`] together: an
     /// oracle that casts camera rays through the [`ALBEDO_TAPS`] for both casts them once.
     fn footprint(&self, p: PixelCoord, centre: ObjectId) -> Footprint {
@@ -115,6 +154,29 @@ pub trait PixelOracle: Sync {
             },
         }
     }
+}
+
+/// A pixel's auxiliary features for the denoiser ([`PixelOracle::aux_features`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AuxFeatures {
+    /// Each channel in [0, 1].
+    pub albedo: Rgb,
+    /// Each component in [-1, 1]; zero on a miss.
+    pub normal: glam::Vec3,
+}
+
+/// A run of one pixel's paths, summed ([`PixelOracle::sample_sum`]): enough to merge runs
+/// and to know the variance of their mean.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SampleSum {
+    /// Sum of the finite paths' radiance.
+    pub sum: glam::DVec3,
+    /// Sum of their squares.
+    pub sum_sq: glam::DVec3,
+    /// Paths kept (non-finite ones are dropped, as in [`PixelOracle::estimate_with`]).
+    pub kept: u32,
+    /// Rays cast for them (0 from an oracle that does not count).
+    pub rays: u32,
 }
 
 /// What a pixel's footprint holds ([`PixelOracle::footprint`]).
