@@ -23,9 +23,11 @@ pub struct RenderArgs {
     #[arg(long, value_name = "OUT.png|OUT.jpg|OUT.exr")]
     pub output: PathBuf,
     /// How pixels are chosen: `progressive` (F&P04's perceptual loop), `guo` (the same
-    /// loop with Guo 1998's statistical oracle) or `reference` (every pixel traced).
-    /// Default: the scene's `render.mode`, which defaults to progressive.
-    #[arg(long, value_parser = parse_mode, value_name = "reference|progressive|guo")]
+    /// loop with Guo 1998's statistical oracle), `reference` (every pixel traced) or
+    /// `adaptive` (every pixel, in passes of samples placed where the vision model still
+    /// sees error in the denoised picture). Default: the scene's `render.mode`, which
+    /// defaults to progressive.
+    #[arg(long, value_parser = parse_mode, value_name = "reference|progressive|guo|adaptive")]
     pub mode: Option<RenderMode>,
     /// Write the final statistics as JSON.
     #[arg(long)]
@@ -66,6 +68,17 @@ pub struct RenderArgs {
     /// (no Monte Carlo noise compensation; see README).
     #[arg(long)]
     pub no_noise_compensation: bool,
+    /// Denoise the picture with Intel Open Image Denoise (every pass in adaptive mode,
+    /// the last frame in the others). Default: the scene's `render.denoise`, which is on
+    /// in adaptive mode only.
+    #[arg(long, overrides_with = "no_denoise")]
+    pub denoise: bool,
+    /// Do not denoise, whatever the scene says.
+    #[arg(long)]
+    pub no_denoise: bool,
+    /// Adaptive mode: stop after tracing this many paths over the image.
+    #[arg(long, value_name = "N")]
+    pub max_samples: Option<u64>,
 }
 
 /// The format `--output` names by its extension.
@@ -167,8 +180,9 @@ fn parse_mode(s: &str) -> Result<RenderMode, String> {
         "reference" => Ok(RenderMode::Reference),
         "progressive" => Ok(RenderMode::Progressive),
         "guo" => Ok(RenderMode::Guo),
+        "adaptive" => Ok(RenderMode::Adaptive),
         _ => Err(format!(
-            "unknown mode {s:?}: expected reference, progressive or guo"
+            "unknown mode {s:?}: expected reference, progressive, guo or adaptive"
         )),
     }
 }
@@ -196,7 +210,18 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
         max_time: a.max_time,
         noise_compensation: a.no_noise_compensation.then_some(false),
+        denoise: if a.denoise {
+            Some(true)
+        } else if a.no_denoise {
+            Some(false)
+        } else {
+            None
+        },
+        max_samples: a.max_samples,
     };
+    // Asked before any work: a render that cannot denoise as asked is refused, not
+    // returned noisy.
+    crate::progressive::denoiser_for(&scene, &opts)?;
     let mut iterations = a
         .layers
         .as_ref()

@@ -48,6 +48,7 @@
 //!   `max_time` (checked between chunks of 4096 pixels; the first sample set is always
 //!   traced whole). `stats.stop_reason` says which.
 
+pub mod adaptive;
 pub mod classify;
 pub mod complex;
 pub mod driver;
@@ -65,6 +66,7 @@ pub mod uniform;
 pub use stats::{IterationStats, RenderStats};
 
 use crate::cancel::{CancelToken, Cancelled};
+use crate::denoise::{DenoiseError, Denoiser, Quality};
 use crate::raster::{Image, LinearImage};
 use crate::scene::{ObjectId, RenderMode, Scene};
 use crate::tracer::{self, PixelOracle};
@@ -197,6 +199,42 @@ pub struct RenderOptions {
     /// Noise-aware classification ([`noise`]); `None` = on. `Some(false)` runs F&P04's
     /// classification on the raw distances (to measure the extension's effect).
     pub noise_compensation: Option<bool>,
+    /// Overrides the scene's `render.denoise` (`glimpse render --denoise/--no-denoise`).
+    pub denoise: Option<bool>,
+    /// Adaptive mode: stop once this many paths have been traced over the image.
+    pub max_samples: Option<u64>,
+}
+
+/// Whether a render of `scene` with `opts` denoises: the options, else the scene's
+/// `render.denoise`, else on in adaptive mode only.
+#[must_use]
+pub fn wants_denoise(scene: &Scene, opts: &RenderOptions) -> bool {
+    let mode = opts.mode.unwrap_or(scene.render.mode);
+    opts.denoise
+        .or(scene.render.denoise)
+        .unwrap_or(mode == RenderMode::Adaptive)
+}
+
+/// The denoiser a render of `scene` with `opts` needs, `None` if it does not denoise;
+/// the error names what is missing and how to add it. Callers ask before rendering, so
+/// a render that was asked to denoise never silently comes back without it.
+pub fn denoiser_for(
+    scene: &Scene,
+    opts: &RenderOptions,
+) -> Result<Option<&'static Denoiser>, DenoiseError> {
+    if wants_denoise(scene, opts) {
+        Denoiser::shared().map(Some)
+    } else {
+        Ok(None)
+    }
+}
+
+/// OIDN's `inputScale` for the scene's display: 1.0 means 100 cd/m², and a radiance v
+/// is shown at v · exposure · peak luminance cd/m² (vision-model.md §2.1).
+#[must_use]
+pub fn denoise_input_scale(scene: &Scene) -> Option<f32> {
+    let s = scene.display.exposure * scene.display.peak_luminance / 100.0;
+    (s.is_finite() && s > 0.0).then_some(s)
 }
 
 /// Renders `scene` with `oracle`, calling `on_frame` for every iteration.
@@ -223,7 +261,130 @@ pub fn render_reporting(
     on_pixels: &(dyn Fn(usize, usize) + Sync),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
-    match opts.mode.unwrap_or(scene.render.mode) {
+    let mode = opts.mode.unwrap_or(scene.render.mode);
+    let denoiser = match denoiser_for(scene, opts) {
+        Ok(d) => d,
+        Err(e) => {
+            // The command line and the service ask [`denoiser_for`] first and refuse;
+            // a library caller that did not is told here, and its frames say so.
+            tracing::warn!("this render was asked to denoise and cannot: {e}");
+            None
+        }
+    };
+    if mode == RenderMode::Adaptive {
+        return render_adaptive(scene, oracle, opts, denoiser, on_frame, cancel);
+    }
+    let Some(denoiser) = denoiser else {
+        return render_mode(scene, oracle, opts, mode, on_frame, on_pixels, cancel);
+    };
+    // The last frame goes through the denoiser before anyone sees it.
+    let mut last: Option<Frame> = None;
+    let mut denoise_last = |f: &Frame| {
+        if f.last {
+            let d = denoise_frame(scene, oracle, denoiser, f, cancel);
+            on_frame(&d);
+            last = Some(d);
+        } else {
+            on_frame(f);
+        }
+    };
+    let frame = render_mode(
+        scene,
+        oracle,
+        opts,
+        mode,
+        &mut denoise_last,
+        on_pixels,
+        cancel,
+    )?;
+    if cancel.is_cancelled() {
+        return Err(Cancelled);
+    }
+    Ok(last.unwrap_or(frame))
+}
+
+/// `frame` with its picture denoised at the best quality, the auxiliary images traced
+/// for it; the frame as it was (and saying so) if the denoiser fails.
+fn denoise_frame(
+    scene: &Scene,
+    oracle: &impl PixelOracle,
+    denoiser: &Denoiser,
+    frame: &Frame,
+    cancel: &CancelToken,
+) -> Frame {
+    let t = Instant::now();
+    let Ok(aux) = tracer::aux::aux_maps(oracle, cancel) else {
+        return frame.clone();
+    };
+    let filter = adaptive::estimate::Filter::Denoised {
+        denoiser,
+        aux,
+        input_scale: denoise_input_scale(scene),
+    };
+    let mut out = frame.clone();
+    match filter.apply(&frame.image, Quality::High) {
+        Ok(img) => {
+            out.image = img;
+            out.stats.denoised = true;
+        }
+        Err(e) => tracing::warn!("the denoiser failed, the picture is not denoised: {e}"),
+    }
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    out.stats.denoise_ms += ms;
+    out.stats.total_ms += ms;
+    out
+}
+
+/// The adaptive mode ([`adaptive`]), denoising every pass when `denoiser` is given.
+fn render_adaptive(
+    scene: &Scene,
+    oracle: &impl PixelOracle,
+    opts: &RenderOptions,
+    denoiser: Option<&Denoiser>,
+    on_frame: &mut dyn FnMut(&Frame),
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
+    let (w, h) = oracle.size();
+    let p = &scene.progressive;
+    let max_spp = scene.render.samples_per_pixel.max(1);
+    let settings = adaptive::Settings {
+        max_spp,
+        first_spp: adaptive::Settings::first_spp_for(max_spp, opts.max_samples, w, h),
+        t0: p.t0,
+        seed: scene.render.seed,
+        max_passes: p.max_iterations,
+        max_time: opts.max_time,
+        max_samples: opts.max_samples,
+        metric: crate::metric::MetricParams {
+            homogeneity: p.homogeneity,
+            epsilon: p.epsilon,
+            seed: scene.render.seed,
+        },
+    };
+    let filter = match denoiser {
+        Some(denoiser) => adaptive::estimate::Filter::Denoised {
+            denoiser,
+            aux: tracer::aux::aux_maps(oracle, cancel)?,
+            input_scale: denoise_input_scale(scene),
+        },
+        None => adaptive::estimate::Filter::Raw,
+    };
+    let model = VisionModel::new(display_model(scene), w, h);
+    adaptive::render(oracle, &settings, model, filter, on_frame, cancel)
+}
+
+/// The modes that do not denoise as they go: reference, the F&P04 loop, Guo.
+fn render_mode(
+    scene: &Scene,
+    oracle: &impl PixelOracle,
+    opts: &RenderOptions,
+    mode: RenderMode,
+    on_frame: &mut dyn FnMut(&Frame),
+    on_pixels: &(dyn Fn(usize, usize) + Sync),
+    cancel: &CancelToken,
+) -> Result<Frame, Cancelled> {
+    match mode {
+        RenderMode::Adaptive => render_adaptive(scene, oracle, opts, None, on_frame, cancel),
         RenderMode::Reference => render_reference(scene, oracle, on_frame, on_pixels, cancel),
         RenderMode::Progressive => {
             let settings = settings(scene, opts, driver::Oracle::Perceptual);

@@ -60,7 +60,9 @@ pub struct RenderStats {
     /// whole, cheaper than another iteration), "reference_cheaper" (every pixel traced
     /// from the start: the scene's paths are too cheap for the loop to pay for its own
     /// work, `driver::cost`), "all_traced", "max_iterations",
-    /// "max_pixels", "max_time", "no_triangles" (1-pixel-wide images are traced fully).
+    /// "max_pixels", "max_time", "no_triangles" (1-pixel-wide images are traced fully);
+    /// adaptive mode: "all_final" (nothing visible left for two passes), "all_traced"
+    /// (every pixel at `samples_per_pixel`), "max_time", "max_samples", "max_iterations".
     #[serde(default)]
     pub stop_reason: Option<String>,
     /// Noise twins traced once frame 0 is out (noise-aware extension of F&P04, see
@@ -76,4 +78,14 @@ pub struct RenderStats {
     /// noise-free oracle or when no twin was traced.
     #[serde(default)]
     pub noise_distance_mean: f64,
+    /// Whether this frame's picture went through the denoiser (`render.denoise`).
+    #[serde(default)]
+    pub denoised: bool,
+    /// Wall time spent denoising, ms (inside `total_ms`).
+    #[serde(default)]
+    pub denoise_ms: f64,
+    /// Paths traced over the image (adaptive mode; 0 in the others, whose count is
+    /// `pixels_traced` × `samples_per_pixel`).
+    #[serde(default)]
+    pub samples_traced: u64,
 }

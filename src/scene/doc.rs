@@ -468,6 +468,8 @@ pub struct RenderDoc {
     pub samples_per_pixel: u64,
     pub max_bounces: u64,
     pub seed: u64,
+    /// `null`/absent: on in adaptive mode, off in the others.
+    pub denoise: Option<bool>,
 }
 
 impl Default for RenderDoc {
@@ -477,6 +479,7 @@ impl Default for RenderDoc {
             samples_per_pixel: 16,
             max_bounces: 5,
             seed: 1,
+            denoise: None,
         }
     }
 }

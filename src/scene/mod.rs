@@ -298,6 +298,9 @@ pub enum RenderMode {
     Progressive,
     Guo,
     Reference,
+    /// Passes of samples over the whole image, each spent where the vision model sees the
+    /// most error left in the denoised picture (`progressive::adaptive`).
+    Adaptive,
 }
 
 impl RenderMode {
@@ -307,6 +310,7 @@ impl RenderMode {
             RenderMode::Progressive => "progressive",
             RenderMode::Guo => "guo",
             RenderMode::Reference => "reference",
+            RenderMode::Adaptive => "adaptive",
         }
     }
 }
@@ -317,6 +321,10 @@ pub struct RenderSettings {
     pub samples_per_pixel: u32,
     pub max_bounces: u32,
     pub seed: u64,
+    /// Whether the final picture (and, in adaptive mode, every pass's) goes through the
+    /// denoiser: `render.denoise`; `None` = on in adaptive mode only (decided with the
+    /// mode a render actually runs, which the command line and the API can override).
+    pub denoise: Option<bool>,
 }
 
 /// The `progressive` block: thresholds of §4.2 and the metric's subdivision test (§3.2).

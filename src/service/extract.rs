@@ -228,10 +228,11 @@ pub(super) fn upload_settings(
         Some("progressive") => Some(RenderMode::Progressive),
         Some("guo") => Some(RenderMode::Guo),
         Some("reference") => Some(RenderMode::Reference),
+        Some("adaptive") => Some(RenderMode::Adaptive),
         Some(other) => {
             return Err(ApiError::new(
                 ErrorCode::InvalidParameter,
-                format!("?mode= must be progressive, guo or reference, got \"{other}\""),
+                format!("?mode= must be progressive, guo, reference or adaptive, got \"{other}\""),
             )
             .at("mode"))
         }

@@ -113,34 +113,17 @@ pub trait PixelOracle: Sync {
             normal: glam::Vec3::ZERO,
         }
     }
-    /// The sum of paths `first .. first + count` of pixel `p`'s sequence under `seed`: a
-    /// pure function of its arguments, so passes that add samples to a pixel in any
-    /// order and on any thread add up to [`PixelOracle::estimate_with`] of the whole
-    /// count. The default derives it from two whole-count estimates (exact oracles and
-    /// test oracles; the path tracer sums the paths themselves).
-    fn sample_sum(&self, p: PixelCoord, first: u32, count: u32, seed: u64) -> SampleSum {
-        let whole = |n: u32| {
-            if n == 0 {
-                return (glam::DVec3::ZERO, glam::DVec3::ZERO);
-            }
-            let e = self.estimate_with(p, n, seed);
-            let k = f64::from(n);
-            let mean = e.radiance.as_dvec3();
-            let var = if e.variance.is_finite() {
-                e.variance.as_dvec3()
-            } else {
-                glam::DVec3::ZERO
-            };
-            (mean * k, var * k * (k - 1.0) + mean * mean * k)
-        };
-        let (s1, q1) = whole(first + count);
-        let (s0, q0) = whole(first);
-        SampleSum {
-            sum: s1 - s0,
-            sum_sq: (q1 - q0).max(glam::DVec3::ZERO),
-            kept: count,
-            rays: 0,
+    /// `acc` with the next `count` paths of pixel `p`'s sequence under `seed` added (paths
+    /// `acc.next ..`): a pure function of its arguments, so passes that add paths to a
+    /// pixel add up to [`PixelOracle::estimate_with`] of the whole count, on any thread.
+    /// The default, for oracles that do not trace paths (exact and test oracles), adds
+    /// the whole-count estimate's mean `count` times.
+    fn sample_sum(&self, p: PixelCoord, count: u32, seed: u64, mut acc: SampleSum) -> SampleSum {
+        let mean = self.estimate_with(p, acc.next + count, seed).radiance;
+        for _ in 0..count {
+            acc.add(mean);
         }
+        acc
     }
     /// [`PixelOracle::footprint_mixed`] and [`PixelOracle::texture_albedo`] together: an
     /// oracle that casts camera rays through the [`ALBEDO_TAPS`] for both casts them once.
@@ -165,18 +148,78 @@ pub struct AuxFeatures {
     pub normal: glam::Vec3,
 }
 
-/// A run of one pixel's paths, summed ([`PixelOracle::sample_sum`]): enough to merge runs
-/// and to know the variance of their mean.
+/// One pixel's paths summed so far ([`PixelOracle::sample_sum`]). The sum is kept in the
+/// same f32 arithmetic, in the same order, as [`PixelOracle::estimate_with`], so a pixel
+/// summed over runs `0..a`, `a..n` has the mean of `estimate_with(p, n)` bit for bit.
+/// Even-numbered paths are also summed apart: with independent paths, the even and odd
+/// halves are two independent estimates of the pixel (an error estimate needs two).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SampleSum {
     /// Sum of the finite paths' radiance.
-    pub sum: glam::DVec3,
+    pub sum: Rgb,
     /// Sum of their squares.
     pub sum_sq: glam::DVec3,
     /// Paths kept (non-finite ones are dropped, as in [`PixelOracle::estimate_with`]).
     pub kept: u32,
+    /// Sum and count of the kept paths of even index.
+    pub even_sum: Rgb,
+    pub even_kept: u32,
+    /// Paths asked for so far, kept or not: the index of the next one.
+    pub next: u32,
     /// Rays cast for them (0 from an oracle that does not count).
-    pub rays: u32,
+    pub rays: u64,
+}
+
+impl SampleSum {
+    /// The mean of the kept paths, as [`PixelOracle::estimate_with`] computes it (zero when
+    /// none was kept or the mean overflows).
+    #[must_use]
+    pub fn mean(&self) -> Rgb {
+        if self.kept == 0 {
+            return Rgb::ZERO;
+        }
+        let m = self.sum / self.kept as f32;
+        if m.is_finite() {
+            m
+        } else {
+            Rgb::ZERO
+        }
+    }
+
+    /// The means of the even and of the odd paths: two independent half estimates.
+    #[must_use]
+    pub fn halves(&self) -> (Rgb, Rgb) {
+        let odd_kept = self.kept - self.even_kept;
+        let mean = |s: Rgb, k: u32| {
+            let m = if k == 0 { Rgb::ZERO } else { s / k as f32 };
+            if m.is_finite() {
+                m
+            } else {
+                Rgb::ZERO
+            }
+        };
+        (
+            mean(self.even_sum, self.even_kept),
+            mean(self.sum - self.even_sum, odd_kept),
+        )
+    }
+
+    /// Adds one path's radiance `v` (index `self.next`); non-finite paths are counted
+    /// as asked for, not kept.
+    #[inline]
+    pub fn add(&mut self, v: Rgb) {
+        if v.is_finite() {
+            self.sum += v;
+            let d = v.as_dvec3();
+            self.sum_sq += d * d;
+            if self.next % 2 == 0 {
+                self.even_sum += v;
+                self.even_kept += 1;
+            }
+            self.kept += 1;
+        }
+        self.next += 1;
+    }
 }
 
 /// What a pixel's footprint holds ([`PixelOracle::footprint`]).
@@ -685,14 +728,54 @@ impl PathTracer {
     /// [`PixelOracle::radiance_albedo_with`]) only with `ALBEDO`. The radiance is the same
     /// bit for bit either way, and the variance is summed beside it without touching it.
     fn sample_mean<const ALBEDO: bool>(&self, p: PixelCoord, samples: u32, seed: u64) -> Estimate {
-        let mut sum = Vec3::ZERO;
-        // Second moments for the variance (f64: a sum of squares of HDR values).
-        let mut sq = glam::DVec3::ZERO;
         // Without ALBEDO it stays `None` (nothing summed).
         let mut albedo = ALBEDO.then_some(Vec3::ZERO);
-        let mut kept = 0u32;
+        let acc = self.add_paths::<ALBEDO>(p, samples, seed, SampleSum::default(), &mut albedo);
+        let (kept, rays) = (acc.kept, u32::try_from(acc.rays).unwrap_or(u32::MAX));
+        if kept == 0 {
+            return Estimate {
+                radiance: Rgb::ZERO,
+                variance: Rgb::INFINITY,
+                albedo: None,
+                rays,
+            };
+        }
+        let k = f64::from(kept);
+        let s1 = acc.sum.as_dvec3();
+        let variance = if kept < 2 {
+            Rgb::INFINITY
+        } else {
+            ((acc.sum_sq - s1 * s1 / k).max(glam::DVec3::ZERO) / (k * (k - 1.0))).as_vec3()
+        };
+        let albedo = albedo.map(|s| s / kept as f32);
+        // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
+        Estimate {
+            radiance: acc.mean(),
+            variance: if variance.is_finite() {
+                variance
+            } else {
+                Rgb::INFINITY
+            },
+            albedo,
+            rays,
+        }
+    }
+
+    /// `acc` with the next `count` paths of pixel `p` added, and (with `ALBEDO`) their
+    /// first-hit texture albedos summed into `albedo` (`None` once any kept path missed a
+    /// textured Lambertian surface). Paths that come out NaN or infinite are dropped.
+    fn add_paths<const ALBEDO: bool>(
+        &self,
+        p: PixelCoord,
+        count: u32,
+        seed: u64,
+        mut acc: SampleSum,
+        albedo: &mut Option<Vec3>,
+    ) -> SampleSum {
         let mut rays = 0u32;
-        for i in 0..samples {
+        let kept_before = acc.kept;
+        let end = acc.next.saturating_add(count);
+        for i in acc.next..end {
             let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
             let (v, a) = if ALBEDO {
                 let mut a = None;
@@ -704,45 +787,17 @@ impl PathTracer {
                 (self.trace_path(p.x, p.y, &mut rng, &mut rays), None)
             };
             if v.is_finite() {
-                sum += v;
-                let d = v.as_dvec3();
-                sq += d * d;
-                kept += 1;
-                albedo = albedo.zip(a).map(|(s, a)| s + a);
+                *albedo = albedo.zip(a).map(|(s, a)| s + a);
             }
+            acc.add(v);
         }
-        if kept < samples {
+        let kept = acc.kept - kept_before;
+        if kept < count {
             self.dropped
-                .fetch_add(u64::from(samples - kept), Ordering::Relaxed);
+                .fetch_add(u64::from(count - kept), Ordering::Relaxed);
         }
-        if kept == 0 {
-            return Estimate {
-                radiance: Rgb::ZERO,
-                variance: Rgb::INFINITY,
-                albedo: None,
-                rays,
-            };
-        }
-        let k = f64::from(kept);
-        let s1 = sum.as_dvec3();
-        let variance = if kept < 2 {
-            Rgb::INFINITY
-        } else {
-            ((sq - s1 * s1 / k).max(glam::DVec3::ZERO) / (k * (k - 1.0))).as_vec3()
-        };
-        let albedo = albedo.map(|s| s / kept as f32);
-        let mean = sum / kept as f32;
-        // The sum of finite samples can still overflow f32 (radiance near f32::MAX).
-        Estimate {
-            radiance: if mean.is_finite() { mean } else { Rgb::ZERO },
-            variance: if variance.is_finite() {
-                variance
-            } else {
-                Rgb::INFINITY
-            },
-            albedo,
-            rays,
-        }
+        acc.rays += u64::from(rays);
+        acc
     }
 
     /// The object the camera ray through `jitter` of pixel `p` hits.
@@ -828,6 +883,10 @@ impl PixelOracle for PathTracer {
 
     fn estimate(&self, p: PixelCoord) -> Estimate {
         self.estimate_with(p, self.samples_per_pixel, self.seed)
+    }
+
+    fn sample_sum(&self, p: PixelCoord, count: u32, seed: u64, acc: SampleSum) -> SampleSum {
+        self.add_paths::<false>(p, count, seed, acc, &mut None)
     }
 
     fn object_id(&self, p: PixelCoord) -> ObjectId {

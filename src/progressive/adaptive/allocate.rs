@@ -1,0 +1,159 @@
+//! Where the next pass spends its samples (pure): tiles whose predicted visible error is
+//! above t0 get the samples that would bring it down to t0, dearest-per-JND last.
+//!
+//! Monte Carlo error falls as 1/√n, and near threshold the vision model's distance grows
+//! about linearly with the contrast of the error, so a tile at visible error v with n
+//! samples per pixel needs about n·(v/t0)² to reach t0. A pass adds at most
+//! [`MAX_GROWTH`]× a tile's samples (the estimate is a prediction; the next pass checks
+//! it) and the pass as a whole at most the samples traced so far (passes double), so the
+//! error is re-measured at geometric intervals.
+
+/// A tile's samples grow at most this much in one pass.
+pub const MAX_GROWTH: u32 = 4;
+
+/// One pooling tile as the allocator sees it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tile {
+    /// Pixels in the tile.
+    pub pixels: u32,
+    /// Samples each of its pixels has (the fewest among them).
+    pub samples: u32,
+    /// Predicted visible error (JND, pooled over the tile).
+    pub visible: f32,
+    /// Rays per sample (what a sample there costs); 1 when unknown.
+    pub cost: f32,
+}
+
+/// The limits of one pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PassLimits {
+    /// Visible error at or below which a tile is done (JND).
+    pub t0: f32,
+    /// No pixel gets more samples than this.
+    pub max_spp: u32,
+    /// Samples this pass may add over the whole image.
+    pub budget: u64,
+}
+
+/// Samples to add per pixel of each tile (0 = none). With `t0 = 0` every tile goes
+/// straight to `max_spp` (the reference's samples: nothing is visible only at zero).
+#[must_use]
+pub fn plan(tiles: &[Tile], limits: &PassLimits) -> Vec<u32> {
+    let mut extra: Vec<u32> = tiles.iter().map(|t| wanted(t, limits)).collect();
+    // Most visible error per unit of cost first; the budget cuts the rest.
+    let mut order: Vec<usize> = (0..tiles.len()).filter(|&i| extra[i] > 0).collect();
+    order.sort_by(|&a, &b| {
+        let worth = |t: &Tile| t.visible / t.cost.max(1e-6);
+        worth(&tiles[b])
+            .total_cmp(&worth(&tiles[a]))
+            .then(a.cmp(&b))
+    });
+    let mut left = limits.budget;
+    for i in order {
+        let t = &tiles[i];
+        let want = u64::from(extra[i]) * u64::from(t.pixels);
+        if want <= left {
+            left -= want;
+        } else {
+            // Whole samples per pixel only: what the budget still pays for, maybe none.
+            extra[i] = u32::try_from(left / u64::from(t.pixels.max(1))).unwrap_or(u32::MAX);
+            left -= u64::from(extra[i]) * u64::from(t.pixels);
+        }
+    }
+    extra
+}
+
+/// What one tile would need to reach t0 (before the budget).
+fn wanted(t: &Tile, l: &PassLimits) -> u32 {
+    if t.samples >= l.max_spp {
+        return 0;
+    }
+    let room = l.max_spp - t.samples;
+    if l.t0 <= 0.0 {
+        return room;
+    }
+    if !(t.visible > l.t0) {
+        return 0;
+    }
+    let ratio = f64::from(t.visible / l.t0);
+    let target = (f64::from(t.samples.max(1)) * ratio * ratio).ceil();
+    let grown = f64::from(t.samples.max(1)) * f64::from(MAX_GROWTH);
+    let target = target.min(grown).min(f64::from(l.max_spp)) as u32;
+    target.saturating_sub(t.samples).clamp(1, room)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tile(samples: u32, visible: f32, cost: f32) -> Tile {
+        Tile {
+            pixels: 64,
+            samples,
+            visible,
+            cost,
+        }
+    }
+
+    const OPEN: PassLimits = PassLimits {
+        t0: 1.0,
+        max_spp: 1024,
+        budget: u64::MAX,
+    };
+
+    #[test]
+    fn a_tile_at_or_below_t0_gets_nothing() {
+        assert_eq!(plan(&[tile(8, 1.0, 1.0), tile(8, 0.2, 1.0)], &OPEN), [0, 0]);
+    }
+
+    #[test]
+    fn samples_grow_with_the_square_of_the_visible_error() {
+        // 1.5 JND at 8 spp: 8·2.25 = 18 → 10 more.
+        assert_eq!(plan(&[tile(8, 1.5, 1.0)], &OPEN), [10]);
+        // 10 JND would want 800: capped at 4× per pass.
+        assert_eq!(plan(&[tile(8, 10.0, 1.0)], &OPEN), [24]);
+    }
+
+    #[test]
+    fn nothing_goes_past_max_spp() {
+        let l = PassLimits {
+            max_spp: 20,
+            ..OPEN
+        };
+        assert_eq!(
+            plan(&[tile(16, 10.0, 1.0), tile(20, 10.0, 1.0)], &l),
+            [4, 0]
+        );
+    }
+
+    #[test]
+    fn t0_zero_takes_every_pixel_to_max_spp() {
+        let l = PassLimits {
+            t0: 0.0,
+            max_spp: 64,
+            ..OPEN
+        };
+        assert_eq!(plan(&[tile(8, 0.0, 1.0), tile(64, 3.0, 1.0)], &l), [56, 0]);
+    }
+
+    #[test]
+    fn the_budget_goes_to_the_most_visible_error_per_cost_first() {
+        // Same error, the second tile's samples cost 4×: the first is served first.
+        let l = PassLimits {
+            budget: 64 * 24 + 64 * 5,
+            ..OPEN
+        };
+        let p = plan(&[tile(8, 10.0, 1.0), tile(8, 10.0, 4.0)], &l);
+        assert_eq!(p, [24, 5]);
+    }
+
+    #[test]
+    fn non_finite_errors_do_not_panic_or_allocate_wildly() {
+        let p = plan(
+            &[tile(8, f32::NAN, 1.0), tile(8, f32::INFINITY, 0.0)],
+            &OPEN,
+        );
+        assert_eq!(p[0], 0);
+        assert_eq!(p[1], 24);
+    }
+}

@@ -1,0 +1,159 @@
+//! What a pass shows and how much error it still has that a person would see.
+//!
+//! The error of the (denoised) picture is estimated from two independent half images:
+//! for Monte Carlo estimates A and B of equal count, the mean (A + B)/2 is off by about
+//! (A − B)/2 (the half-buffer rule). With a denoiser D, each half is denoised on its
+//! own and e ≈ (D(A) − D(B))/2: what the denoiser removed cancels out, what it could
+//! not remove does not. The vision model then measures the distance between the picture
+//! I and I + e at the scene's display and viewing distance (masking, adaptation, ppd):
+//! the error a person would see, in JND, per pixel.
+
+use crate::denoise::{Aux, DenoiseError, Denoiser, Quality};
+use crate::metric::{block_map, MetricParams};
+use crate::raster::{Image, LinearImage, Rgb};
+use crate::tracer::aux::AuxMaps;
+use crate::vision::VisionModel;
+
+/// How passes are reconstructed: as traced, or through the denoiser.
+pub enum Filter<'a> {
+    Raw,
+    Denoised {
+        denoiser: &'a Denoiser,
+        aux: AuxMaps,
+        /// OIDN's `inputScale` (1.0 = 100 cd/m²).
+        input_scale: Option<f32>,
+    },
+}
+
+impl Filter<'_> {
+    /// `img` reconstructed at `quality` (the raw filter returns it as it is).
+    pub fn apply(&self, img: &LinearImage, quality: Quality) -> Result<LinearImage, DenoiseError> {
+        match self {
+            Filter::Raw => Ok(img.clone()),
+            Filter::Denoised {
+                denoiser,
+                aux,
+                input_scale,
+            } => {
+                let aux = Aux {
+                    albedo: &aux.albedo,
+                    normal: &aux.normal,
+                    clean: true,
+                };
+                denoiser.denoise(img, Some(&aux), quality, *input_scale)
+            }
+        }
+    }
+
+    #[must_use]
+    pub fn denoises(&self) -> bool {
+        matches!(self, Filter::Denoised { .. })
+    }
+}
+
+/// A pass's picture and its estimated error.
+pub struct Picture {
+    pub image: LinearImage,
+    /// Signed error estimate per pixel, (D(A) − D(B))/2.
+    pub error: LinearImage,
+}
+
+/// The pass's picture (all samples, reconstructed) and its error from the two halves.
+pub fn picture(
+    full: &LinearImage,
+    halves: (&LinearImage, &LinearImage),
+    filter: &Filter<'_>,
+    quality: Quality,
+) -> Result<Picture, DenoiseError> {
+    let image = filter.apply(full, quality)?;
+    let a = filter.apply(halves.0, quality)?;
+    let b = filter.apply(halves.1, quality)?;
+    let error = Image::from_vec(
+        a.width(),
+        a.height(),
+        a.pixels()
+            .iter()
+            .zip(b.pixels())
+            .map(|(a, b)| (*a - *b) * 0.5)
+            .collect(),
+    )
+    .expect("halves of one size");
+    Ok(Picture { image, error })
+}
+
+/// The error a person would see in `pic` (JND per pixel): the vision model's distance
+/// between the picture and the picture plus its error, over the adaptive block map.
+/// `None` when the model cannot judge the images (then every tile counts as unfinished).
+#[must_use]
+pub fn visible_error(
+    model: &VisionModel,
+    pic: &Picture,
+    params: &MetricParams,
+) -> Option<Image<f32>> {
+    let sane = |v: Rgb| {
+        let f = |c: f32| {
+            if c.is_finite() {
+                c.clamp(0.0, 1e8)
+            } else {
+                0.0
+            }
+        };
+        Rgb::new(f(v.x), f(v.y), f(v.z))
+    };
+    let base = pic.image.map(|&v| sane(v));
+    let off = Image::from_vec(
+        base.width(),
+        base.height(),
+        base.pixels()
+            .iter()
+            .zip(pic.error.pixels())
+            .map(|(&v, &e)| sane(v + e))
+            .collect(),
+    )?;
+    let a = model.decompose(&base).ok()?;
+    let b = model.decompose(&off).ok()?;
+    Some(block_map(model, &a, &b, &[], params).map)
+}
+
+/// Per-tile pooling of a per-pixel map: the mean over each `tile`×`tile` block,
+/// row-major over the tiles.
+#[must_use]
+pub fn pool_mean(map: &Image<f32>, tile: u32) -> Vec<f32> {
+    let (tw, th) = (map.width().div_ceil(tile), map.height().div_ceil(tile));
+    let mut sum = vec![0f64; (tw * th) as usize];
+    let mut n = vec![0u32; (tw * th) as usize];
+    for y in 0..map.height() {
+        for x in 0..map.width() {
+            let t = ((y / tile) * tw + x / tile) as usize;
+            let v = *map.get(x, y);
+            sum[t] += if v.is_finite() { f64::from(v) } else { 1e6 };
+            n[t] += 1;
+        }
+    }
+    sum.iter()
+        .zip(&n)
+        .map(|(s, &k)| (s / f64::from(k.max(1))) as f32)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pooling_averages_each_tile_and_keeps_partial_tiles() {
+        let map = Image::from_fn(5, 3, |x, _| x as f32);
+        // Tiles of 4: columns 0..4 (mean 1.5) and column 4 (mean 4).
+        assert_eq!(pool_mean(&map, 4), [1.5, 4.0]);
+    }
+
+    #[test]
+    fn raw_error_is_half_the_difference_of_the_halves() {
+        let a = Image::filled(2, 2, Rgb::splat(1.0));
+        let b = Image::filled(2, 2, Rgb::splat(0.5));
+        let full = Image::filled(2, 2, Rgb::splat(0.75));
+        let p = picture(&full, (&a, &b), &Filter::Raw, Quality::Fast).unwrap();
+        assert_eq!(p.image.pixels(), full.pixels());
+        assert!(p.error.pixels().iter().all(|e| *e == Rgb::splat(0.25)));
+    }
+}

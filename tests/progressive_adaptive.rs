@@ -1,0 +1,113 @@
+//! The adaptive mode on the real path tracer, without the denoiser (its own tests sit
+//! beside `denoise/`): t0 = 0 is the reference bit for bit, the default t0 spends fewer
+//! samples where the picture is calm, frames stream in passes, budgets hold, and the
+//! extremes (black, blinding, tiny and 1-D images) come out finite.
+
+use glimpse::cancel::CancelToken;
+use glimpse::progressive::{render, Frame, RenderOptions};
+use glimpse::scene::{RenderMode, Scene};
+use glimpse::tracer::{fixtures::cornell_box, render_reference, PathTracer};
+use std::time::Duration;
+
+fn raw_adaptive() -> RenderOptions {
+    RenderOptions {
+        mode: Some(RenderMode::Adaptive),
+        denoise: Some(false),
+        ..RenderOptions::default()
+    }
+}
+
+fn run(s: &Scene, opts: &RenderOptions) -> (Frame, Vec<Frame>) {
+    let t = PathTracer::new(s);
+    let mut frames = Vec::new();
+    let last = render(
+        s,
+        &t,
+        opts,
+        &mut |f| frames.push(f.clone()),
+        &CancelToken::new(),
+    )
+    .expect("not cancelled");
+    (last, frames)
+}
+
+#[test]
+fn t0_zero_without_the_denoiser_is_the_reference_bit_for_bit() {
+    let mut s = cornell_box(40, 30, 24, 3, 7);
+    s.progressive.t0 = 0.0;
+    let (last, frames) = run(&s, &raw_adaptive());
+    let reference =
+        render_reference(&PathTracer::new(&s), &CancelToken::new(), &|_, _| {}).unwrap();
+    assert!(frames.len() >= 2, "a first pass, then the rest");
+    assert_eq!(last.stats.stop_reason.as_deref(), Some("all_traced"));
+    assert_eq!(last.stats.samples_traced, 40 * 30 * 24);
+    assert!(!last.stats.denoised);
+    let same = last
+        .image
+        .pixels()
+        .iter()
+        .zip(reference.pixels())
+        .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits));
+    assert!(same, "t0 = 0 must end with the reference image exactly");
+}
+
+#[test]
+fn the_default_t0_stops_before_every_pixel_has_every_sample() {
+    let s = cornell_box(64, 48, 256, 3, 1);
+    let (last, frames) = run(&s, &raw_adaptive());
+    let full = 64 * 48 * 256;
+    assert!(last.last && frames.last().is_some_and(|f| f.last));
+    assert!(frames.iter().rev().skip(1).all(|f| !f.last));
+    assert!(
+        last.stats.samples_traced < full,
+        "{} of {full} samples ({:?})",
+        last.stats.samples_traced,
+        last.stats.stop_reason
+    );
+    // Each pass's distance layer is the predicted visible error, finite.
+    for f in &frames {
+        let d = f.distance.as_ref().expect("every pass is judged");
+        assert!(d.pixels().iter().all(|v| v.is_finite() && *v >= 0.0));
+        assert!(!f.image.has_non_finite());
+    }
+    // Passes grow the sample count.
+    let counts: Vec<u64> = frames.iter().map(|f| f.stats.samples_traced).collect();
+    assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
+}
+
+#[test]
+fn sample_and_time_budgets_hold() {
+    let s = cornell_box(64, 48, 1024, 3, 1);
+    let opts = RenderOptions {
+        max_samples: Some(64 * 48 * 40),
+        ..raw_adaptive()
+    };
+    let (last, _) = run(&s, &opts);
+    assert_eq!(last.stats.stop_reason.as_deref(), Some("max_samples"));
+    assert!(last.stats.samples_traced <= 64 * 48 * 40);
+    let opts = RenderOptions {
+        max_time: Some(Duration::from_millis(300)),
+        ..raw_adaptive()
+    };
+    let t = std::time::Instant::now();
+    let (last, _) = run(&s, &opts);
+    assert_eq!(last.stats.stop_reason.as_deref(), Some("max_time"));
+    // The first pass is always traced whole; a tiny image's is quick.
+    assert!(t.elapsed() < Duration::from_secs(5), "{:?}", t.elapsed());
+}
+
+#[test]
+fn extremes_come_out_finite() {
+    for (w, h) in [(1, 1), (3, 2), (400, 1), (1, 300)] {
+        let s = cornell_box(w, h, 16, 3, 1);
+        let (last, _) = run(&s, &raw_adaptive());
+        assert!(last.last && !last.image.has_non_finite(), "{w}×{h}");
+        assert_eq!((last.image.width(), last.image.height()), (w, h));
+    }
+    for exposure in [0.0f32, 1e-6, 1e6] {
+        let mut s = cornell_box(24, 18, 16, 3, 1);
+        s.display.exposure = exposure.max(f32::MIN_POSITIVE);
+        let (last, _) = run(&s, &raw_adaptive());
+        assert!(!last.image.has_non_finite(), "exposure {exposure}");
+    }
+}
