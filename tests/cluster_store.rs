@@ -44,6 +44,7 @@ fn progress(iteration: u32) -> Progress {
         eta_high_ms: None,
         eta_confidence: None,
         finishing: false,
+        denoised: false,
     }
 }
 

@@ -31,6 +31,10 @@ pub enum ErrorCode {
     /// The job database cannot be reached (PostgreSQL down or cut off from this node):
     /// 503 like `unavailable`, but the fault is the database's connection, not a disk.
     DatabaseUnreachable,
+    /// The scene asks to be denoised (`render.denoise`, or adaptive mode by default) and
+    /// this server has no Intel Open Image Denoise library (503: the server lacks it, the
+    /// scene is fine; the message says how to add it, or to set `render.denoise` false).
+    DenoiserUnavailable,
     /// The job's record is there but its stored files are gone (removed outside the
     /// server, or a disk replaced): 410, for good; the job has to be submitted again.
     FilesMissing,
@@ -68,9 +72,9 @@ impl ErrorCode {
             ErrorCode::Conflict => StatusCode::CONFLICT,
             ErrorCode::QueueFull => StatusCode::TOO_MANY_REQUESTS,
             ErrorCode::Unauthorized => StatusCode::UNAUTHORIZED,
-            ErrorCode::Unavailable | ErrorCode::DatabaseUnreachable => {
-                StatusCode::SERVICE_UNAVAILABLE
-            }
+            ErrorCode::Unavailable
+            | ErrorCode::DatabaseUnreachable
+            | ErrorCode::DenoiserUnavailable => StatusCode::SERVICE_UNAVAILABLE,
             ErrorCode::FilesMissing => StatusCode::GONE,
             ErrorCode::RequestTimeout => StatusCode::REQUEST_TIMEOUT,
             ErrorCode::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,

@@ -111,6 +111,15 @@ pub(super) async fn create_job(
     let (text, parsed, warnings) = validate(body, settings, limits).await?;
     drop(permit);
     let scene = parsed.map_err(refused)?;
+    // Refused now rather than failed later: a job asked to denoise is never rendered
+    // without it.
+    if let Err(e) = crate::progressive::denoiser_for(&scene, &Default::default()) {
+        return Err(ApiError::new(
+            ErrorCode::DenoiserUnavailable,
+            format!("{e}; or set render.denoise to false"),
+        )
+        .at("render.denoise"));
+    }
     let chars = scene.name.chars().count();
     if chars > MAX_NAME_CHARS {
         return Err(ApiError::new(

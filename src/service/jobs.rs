@@ -132,6 +132,7 @@ fn progress_of(frame: &Frame, elapsed_ms: f64, eta: Eta) -> Progress {
         eta_high_ms: high.map(round),
         eta_confidence: confidence,
         finishing: eta == Eta::Finishing,
+        denoised: frame.stats.denoised,
     }
 }
 

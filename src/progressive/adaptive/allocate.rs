@@ -3,11 +3,14 @@
 //!
 //! Monte Carlo error falls as 1/√n, and near threshold the vision model's distance grows
 //! about linearly with the contrast of the error, so a tile at visible error v with n
-//! samples per pixel needs about n·(v/t0)² to reach t0. A pass adds at most
-//! [`MAX_GROWTH`]× a tile's samples (the estimate is a prediction; the next pass checks
-//! it) and the pass as a whole at most the samples traced so far (passes double), so the
-//! error is re-measured at geometric intervals.
+//! samples per pixel needs about n·(v/t0)² to reach t0. A pass multiplies a tile's
+//! samples by at least [`MIN_GROWTH`] (a tile just above t0 would otherwise creep up by a
+//! few per cent a pass, each pass paying a whole judgement) and at most [`MAX_GROWTH`]
+//! (the estimate is a prediction; the next pass checks it), and the pass as a whole adds
+//! at most the samples traced so far, so the error is re-measured at geometric intervals.
 
+/// A tile's samples grow at least this much in one pass.
+pub const MIN_GROWTH: f64 = 1.5;
 /// A tile's samples grow at most this much in one pass.
 pub const MAX_GROWTH: u32 = 4;
 
@@ -76,9 +79,11 @@ fn wanted(t: &Tile, l: &PassLimits) -> u32 {
         return 0;
     }
     let ratio = f64::from(t.visible / l.t0);
-    let target = (f64::from(t.samples.max(1)) * ratio * ratio).ceil();
-    let grown = f64::from(t.samples.max(1)) * f64::from(MAX_GROWTH);
-    let target = target.min(grown).min(f64::from(l.max_spp)) as u32;
+    let n = f64::from(t.samples.max(1));
+    let target = (n * ratio * ratio).max(n * MIN_GROWTH).ceil();
+    let target = target
+        .min(n * f64::from(MAX_GROWTH))
+        .min(f64::from(l.max_spp)) as u32;
     target.saturating_sub(t.samples).clamp(1, room)
 }
 
@@ -110,6 +115,8 @@ mod tests {
     fn samples_grow_with_the_square_of_the_visible_error() {
         // 1.5 JND at 8 spp: 8·2.25 = 18 → 10 more.
         assert_eq!(plan(&[tile(8, 1.5, 1.0)], &OPEN), [10]);
+        // 1.1 JND would want 10 (+2): at least half as many again, 12.
+        assert_eq!(plan(&[tile(8, 1.1, 1.0)], &OPEN), [4]);
         // 10 JND would want 800: capped at 4× per pass.
         assert_eq!(plan(&[tile(8, 10.0, 1.0)], &OPEN), [24]);
     }

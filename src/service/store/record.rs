@@ -117,6 +117,9 @@ pub struct Progress {
     /// stored before it existed.
     #[serde(default)]
     pub finishing: bool,
+    /// Whether this frame's picture went through the denoiser.
+    #[serde(default)]
+    pub denoised: bool,
 }
 
 /// Why a job failed: a code of service-api.md "Errors" and a sentence.
