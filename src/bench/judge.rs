@@ -66,6 +66,8 @@ pub struct Condition {
     pub worst_object_ratio: f64,
     /// The contact sheet, relative to the output folder.
     pub sheet: String,
+    /// `adaptive` beside uniform + OIDN and the reference + OIDN ([`super::denoised`]).
+    pub denoised: Option<super::denoised::DenoisedRow>,
 }
 
 impl Condition {
@@ -168,6 +170,12 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
         worst_object_ratio: worst_ratio(&objects),
         objects,
         sheet,
+        denoised: Some(super::denoised::judge(
+            case,
+            &scene,
+            &reference,
+            reference_ms,
+        )?),
     })
 }
 
@@ -253,7 +261,7 @@ pub(crate) fn file_stem(name: &str) -> String {
 
 /// `a / b`, where two identical images (b = 0: a reference equal to its truth, as on a
 /// black scene) make a = 0 too and count as equal (1), not as NaN.
-fn ratio(a: f64, b: f64) -> f64 {
+pub(crate) fn ratio(a: f64, b: f64) -> f64 {
     if b > 0.0 {
         a / b
     } else if a > 0.0 {
@@ -283,6 +291,7 @@ mod tests {
             objects: Vec::new(),
             worst_object_ratio: 0.0,
             sheet: String::new(),
+            denoised: None,
         };
         assert_eq!(c.slow_because(), Some(SlowBecause::Overhead));
         c.pixel_fraction = 0.6;

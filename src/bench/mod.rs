@@ -25,6 +25,7 @@
 //! not.
 
 pub mod corpus;
+pub mod denoised;
 pub mod flip;
 pub mod judge;
 pub mod objects;

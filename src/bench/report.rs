@@ -23,6 +23,8 @@ pub fn scene_table(r: &SceneResult) -> String {
     s.push_str(&methods_table(r));
     s.push('\n');
     s.push_str(&conditions_table(&r.conditions));
+    s.push('\n');
+    s.push_str(&denoised_table(&r.conditions));
     s.push_str("\nt0 sweep: ");
     for p in &r.sweep {
         let _ = write!(
@@ -132,6 +134,73 @@ pub fn conditions_table(conditions: &[Condition]) -> String {
         );
     }
     s
+}
+
+/// One row per condition: `adaptive` beside uniform + OIDN at its time and the reference
+/// + OIDN, FLIP against the truth.
+#[must_use]
+pub fn denoised_table(conditions: &[Condition]) -> String {
+    let mut s = String::from(
+        "| ppd | adaptive: Q at × reference time (samples) | adaptive FLIP / uniform + OIDN \
+         at equal time | uniform + OIDN: FLIP (spp, ms) | reference + OIDN FLIP | \
+         Q ≤ 1 at ≤ 0.25× | ≤ 0.85× uniform + OIDN | stop |\n\
+         |---:|---:|---:|---:|---:|---|---|---|\n",
+    );
+    for c in conditions {
+        let Some(d) = &c.denoised else { continue };
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} at {:.2}× ({:.2}×) | {:.2} ({:.4} / {:.4}) | {:.4} ({}, {:.0}) | {:.4} | {} | {} | {} |",
+            c.ppd,
+            d.q,
+            d.time_ratio,
+            d.sample_ratio,
+            d.vs_uniform_oidn,
+            d.adaptive_flip,
+            d.uniform_oidn_flip,
+            d.uniform_oidn_flip,
+            d.uniform_oidn_spp,
+            d.uniform_oidn_ms,
+            d.reference_oidn_flip,
+            yes_no(d.fast_enough()),
+            yes_no(d.beats_uniform()),
+            d.stop_reason
+        );
+    }
+    s
+}
+
+/// The adaptive mode's targets over a set of conditions (`what` names the set).
+fn denoised_targets(what: &str, conds: &[&Condition], share_needed: f64) -> Vec<TargetCheck> {
+    let rows: Vec<&super::denoised::DenoisedRow> =
+        conds.iter().filter_map(|c| c.denoised.as_ref()).collect();
+    if rows.is_empty() {
+        return Vec::new();
+    }
+    let count = |pass: &dyn Fn(&super::denoised::DenoisedRow) -> bool| {
+        rows.iter().filter(|r| pass(r)).count()
+    };
+    let needed = |n: usize| n as f64 >= share_needed * rows.len() as f64;
+    let beats = count(&super::denoised::DenoisedRow::beats_uniform);
+    let fast = count(&super::denoised::DenoisedRow::fast_enough);
+    let mut times: Vec<f64> = rows.iter().map(|r| r.time_ratio).collect();
+    let mut qs: Vec<f64> = rows.iter().map(|r| r.q).collect();
+    let (time, q) = (median(&mut times), median(&mut qs));
+    vec![
+        TargetCheck {
+            target: format!("{what}: adaptive FLIP ≤ 0.85× uniform + OIDN at equal time"),
+            met: needed(beats),
+            detail: count_with_share(beats, rows.len()),
+        },
+        TargetCheck {
+            target: format!("{what}: adaptive Q ≤ 1 in ≤ 0.25× the reference's time"),
+            met: needed(fast),
+            detail: format!(
+                "{}; median {time:.2}×, median Q {q:.2}",
+                count_with_share(fast, rows.len())
+            ),
+        },
+    ]
 }
 
 fn yes_no(b: bool) -> &'static str {
@@ -369,6 +438,8 @@ fn bundled_targets(scenes: &[SceneResult]) -> Vec<TargetCheck> {
             detail: count_with_misses(all.len() - misses.len(), all.len(), &misses),
         });
     }
+    let conds: Vec<&Condition> = all.iter().map(|(_, c)| *c).collect();
+    t.extend(denoised_targets("bundled scenes", &conds, 1.0));
     t
 }
 
@@ -410,6 +481,7 @@ fn corpus_targets(corpus: &[CorpusResult]) -> Vec<TargetCheck> {
         detail: format!("{med:.2}×"),
     });
     let all: Vec<&Condition> = corpus.iter().flat_map(|r| &r.conditions).collect();
+    t.extend(denoised_targets("corpus, ≥ 90 % of conditions", &all, 0.9));
     let (n, of) = share(&all, Condition::objects_pass);
     t.push(TargetCheck {
         target: "corpus: objects keep their colour (every scene and condition)".into(),
@@ -538,7 +610,13 @@ fn markdown(
     if !study.scenes.is_empty() {
         md.push_str("## Bundled scenes against the truth\n\n");
         for r in &study.scenes {
-            let _ = writeln!(md, "### {}\n\n{}", r.scene, conditions_table(&r.conditions));
+            let _ = writeln!(
+                md,
+                "### {}\n\n{}\n{}",
+                r.scene,
+                conditions_table(&r.conditions),
+                denoised_table(&r.conditions)
+            );
         }
         md.push_str(&sweep_section(study));
     }
