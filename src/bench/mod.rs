@@ -63,6 +63,9 @@ pub struct BenchConfig {
     /// with the samples, the tracing does: this shows how the time ratios move when a pixel
     /// costs more, as it does in the scenes F&P04 timed (§5: references of 4 to 50 minutes).
     pub spp_factor: u32,
+    /// Every scene scaled up to at least this many pixels on its long side (`None`: as
+    /// written).
+    pub min_side: Option<u32>,
     /// The declared viewing conditions (pixels per degree) every bundled scene is judged at.
     pub conditions: Vec<f32>,
     /// Where converged renders are cached (default: `out_dir/cache`).
@@ -93,6 +96,7 @@ impl BenchConfig {
             out_dir,
             quick,
             spp_factor: 1,
+            min_side: None,
             conditions: if quick {
                 QUICK_CONDITIONS.to_vec()
             } else {
@@ -438,6 +442,9 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
                 )
             })?;
     }
+    if let Some(side) = cfg.min_side {
+        grow(&mut scene, side);
+    }
     if cfg.quick {
         shrink(&mut scene, 128);
     }
@@ -451,6 +458,16 @@ fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
 fn shrink(scene: &mut Scene, side: u32) {
     let long = scene.width.max(scene.height);
     if long > side {
+        let s = side as f32 / long as f32;
+        scene.width = ((scene.width as f32 * s).round() as u32).max(1);
+        scene.height = ((scene.height as f32 * s).round() as u32).max(1);
+    }
+}
+
+/// Scales the image up to at least `side` pixels on its long side.
+fn grow(scene: &mut Scene, side: u32) {
+    let long = scene.width.max(scene.height);
+    if long < side {
         let s = side as f32 / long as f32;
         scene.width = ((scene.width as f32 * s).round() as u32).max(1);
         scene.height = ((scene.height as f32 * s).round() as u32).max(1);

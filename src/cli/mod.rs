@@ -199,6 +199,10 @@ pub struct BenchArgs {
     /// tracing grows, and the report shows how the time ratios move with a pixel's cost.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub spp_factor: u32,
+    /// Scale every bundled scene up so its long side is at least this many pixels (the
+    /// sizes people render: 512 or more); scenes already larger stay as they are.
+    #[arg(long, value_name = "PIXELS", value_parser = clap::value_parser!(u32).range(1..=8192))]
+    pub min_side: Option<u32>,
     /// Declared viewing conditions to judge every scene at, pixels per degree, comma
     /// separated (default 28,45,60,90; 28,60 with --quick).
     #[arg(long, value_delimiter = ',', value_parser = parse_ppd)]
@@ -416,6 +420,7 @@ fn bench(a: &BenchArgs) -> anyhow::Result<()> {
     };
     let mut cfg = crate::bench::BenchConfig::new(scenes, a.out.clone(), a.quick);
     cfg.spp_factor = a.spp_factor;
+    cfg.min_side = a.min_side;
     if !a.ppd.is_empty() {
         cfg.conditions.clone_from(&a.ppd);
     }

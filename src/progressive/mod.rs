@@ -361,16 +361,9 @@ fn render_adaptive(
             seed: scene.render.seed,
         },
     };
-    let filter = match denoiser {
-        Some(denoiser) => adaptive::estimate::Filter::Denoised {
-            denoiser,
-            aux: tracer::aux::aux_maps(oracle, cancel)?,
-            input_scale: denoise_input_scale(scene),
-        },
-        None => adaptive::estimate::Filter::Raw,
-    };
     let model = VisionModel::new(display_model(scene), w, h);
-    adaptive::render(oracle, &settings, model, filter, on_frame, cancel)
+    let denoise = denoiser.map(|d| (d, denoise_input_scale(scene)));
+    adaptive::render(oracle, &settings, model, denoise, on_frame, cancel)
 }
 
 /// The modes that do not denoise as they go: reference, the F&P04 loop, Guo.

@@ -18,7 +18,7 @@ pub mod pixels;
 
 use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell};
 use crate::cancel::{CancelToken, Cancelled};
-use crate::denoise::Quality;
+use crate::denoise::{Denoiser, Quality};
 use crate::metric::MetricParams;
 use crate::raster::{Image, LinearImage};
 use crate::scene::ObjectId;
@@ -105,18 +105,27 @@ struct Loop<'a> {
     last_filter: Duration,
 }
 
-/// Renders in passes, calling `on_frame` for each; returns the last frame.
+/// Renders in passes, calling `on_frame` for each; returns the last frame. `denoise`:
+/// the denoiser and its input scale (OIDN's `inputScale`), `None` to keep passes raw.
 pub fn render(
     oracle: &impl PixelOracle,
     settings: &Settings,
     model: VisionModel,
-    filter: Filter<'_>,
+    denoise: Option<(&Denoiser, Option<f32>)>,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, Cancelled> {
     let start = Instant::now();
     let (w, h) = oracle.size();
     let objects = Arc::new(tracer::object_id_map(oracle));
+    let filter = match denoise {
+        Some((denoiser, input_scale)) => Filter::Denoised {
+            denoiser,
+            aux: tracer::aux::aux_maps(oracle, cancel)?,
+            input_scale,
+        },
+        None => Filter::Raw,
+    };
     let mut lp = Loop {
         settings,
         model,
@@ -138,10 +147,10 @@ pub fn render(
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
     for pass in 0.. {
         let traced = lp.trace(oracle, &extra, cancel)?;
-        let (pic, visible) = lp.judge(pass);
+        let visible = lp.judge(pass);
         let tiles = lp.tiles(visible.as_ref());
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
-            return Ok(lp.last_frame(pass, pic, visible, &extra, stop, on_frame));
+            return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
         }
         let next = lp.plan(&tiles);
         if next.iter().all(|&n| n == 0) {
@@ -151,9 +160,10 @@ pub fn render(
             } else {
                 Stop::AllAtMax
             };
-            return Ok(lp.last_frame(pass, pic, visible, &extra, stop, on_frame));
+            return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
         }
-        on_frame(&lp.frame(pass, pic.image, visible, &extra, false));
+        let image = lp.reconstruct(Quality::Fast);
+        on_frame(&lp.frame(pass, image, visible, &extra, false));
         extra = next;
     }
     unreachable!("the pass loop only returns")
@@ -180,15 +190,16 @@ impl Loop<'_> {
         Ok(traced)
     }
 
-    /// The pass's picture (the streamed quality) and the visible error left in it.
-    fn judge(&mut self, pass: u32) -> (Picture, Option<Image<f32>>) {
+    /// The visible error left in the pass's picture, from its halves reconstructed at
+    /// the streamed quality.
+    fn judge(&mut self, pass: u32) -> Option<Image<f32>> {
         let t = Instant::now();
-        let full = self.pixels.mean();
         let (a, b) = self.pixels.halves();
-        let pic = match estimate::picture(&full, (&a, &b), &self.filter, Quality::Fast) {
+        let pic = match estimate::picture((&a, &b), &self.filter, Quality::Fast) {
             Ok(p) => p,
-            Err(e) => self.raw_after(&e, &full, (&a, &b)),
+            Err(e) => self.raw_after(&e, (&a, &b)),
         };
+        // Two reconstructions: about what the last frame's one at the best quality costs.
         self.last_filter = t.elapsed();
         self.stats.denoise_ms += ms(self.last_filter);
         let t = Instant::now();
@@ -199,7 +210,23 @@ impl Loop<'_> {
         };
         let visible = estimate::visible_error(&self.model, &pic, &params);
         self.stats.metric_ms += ms(t.elapsed());
-        (pic, visible)
+        visible
+    }
+
+    /// The picture of all the samples so far, reconstructed at `quality`; the raw mean if
+    /// the denoiser fails (the frame then says it was not denoised).
+    fn reconstruct(&mut self, quality: Quality) -> LinearImage {
+        let t = Instant::now();
+        let full = self.pixels.mean();
+        let image = match self.filter.apply(&full, quality) {
+            Ok(img) => img,
+            Err(e) => {
+                self.raw_after(&e, (&full, &full));
+                full
+            }
+        };
+        self.stats.denoise_ms += ms(t.elapsed());
+        image
     }
 
     /// The raw picture, when the denoiser failed while running: the frames say they were
@@ -207,13 +234,12 @@ impl Loop<'_> {
     fn raw_after(
         &mut self,
         e: &crate::denoise::DenoiseError,
-        full: &LinearImage,
         halves: (&LinearImage, &LinearImage),
     ) -> Picture {
         tracing::warn!("adaptive: the denoiser failed, this render continues raw: {e}");
         self.filter = Filter::Raw;
         self.stats.denoised = false;
-        estimate::picture(full, halves, &Filter::Raw, Quality::Fast).expect("raw cannot fail")
+        estimate::picture(halves, &Filter::Raw, Quality::Fast).expect("raw cannot fail")
     }
 
     /// Each tile's samples, visible error and cost.
@@ -369,25 +395,12 @@ impl Loop<'_> {
     fn last_frame(
         &mut self,
         pass: u32,
-        pic: Picture,
         visible: Option<Image<f32>>,
         extra: &[u32],
         stop: Stop,
         on_frame: &mut dyn FnMut(&Frame),
     ) -> Frame {
-        let image = if self.filter.denoises() {
-            let t = Instant::now();
-            let best = self.filter.apply(&self.pixels.mean(), Quality::High);
-            self.stats.denoise_ms += ms(t.elapsed());
-            best.unwrap_or_else(|e| {
-                tracing::warn!(
-                    "adaptive: the final denoise failed, the pass's picture stands: {e}"
-                );
-                pic.image
-            })
-        } else {
-            pic.image
-        };
+        let image = self.reconstruct(Quality::High);
         self.stats.stop_reason = Some(stop.as_str().into());
         let frame = self.frame(pass, image, visible, extra, true);
         on_frame(&frame);
