@@ -446,7 +446,10 @@ mod tests {
                 } else {
                     // Across a checker edge: a mean of 16 taps of a and b.
                     let k = (f.albedo.x - b.x) / (a.x - b.x) * 16.0;
-                    assert!((k - k.round()).abs() < 1e-3 && (f.albedo.y - 0.1).abs() < 1e-6, "{f:?}");
+                    assert!(
+                        (k - k.round()).abs() < 1e-3 && (f.albedo.y - 0.1).abs() < 1e-6,
+                        "{f:?}"
+                    );
                     blend += 1;
                 }
             }
@@ -653,6 +656,131 @@ mod tests {
             let one = run(1);
             assert_eq!(one, run(1), "{name}");
             assert_eq!(one, run(3), "{name}");
+        }
+    }
+}
+
+/// Cost and edge quality of the sub-pixel patterns (release build, by hand; numbers in the
+/// notes): `cargo test --release --lib tracer::aux::measure -- --ignored --nocapture`.
+#[cfg(test)]
+mod measure {
+    use super::*;
+    use crate::scene::{parse_scene, Limits, SceneOrigin};
+    use std::time::Instant;
+
+    fn load(name: &str, w: u32, h: u32) -> crate::scene::Scene {
+        let json = std::fs::read_to_string(format!("scenes/{name}.json")).expect("scene");
+        let origin = SceneOrigin::File {
+            dir: "scenes".into(),
+        };
+        let mut s = parse_scene(&json, &origin, &Limits::command_line()).expect("valid");
+        (s.width, s.height) = (w, h);
+        s
+    }
+
+    /// The mean features over `taps` (no adaptivity).
+    fn mean_over(t: &PathTracer, p: PixelCoord, taps: &[Vec2]) -> AuxFeatures {
+        let (mut a, mut n) = (Vec3::ZERO, Vec3::ZERO);
+        for &j in taps {
+            let f = t.aux_tap(p, j);
+            a += f.albedo;
+            n += f.normal;
+        }
+        AuxFeatures {
+            albedo: a / taps.len() as f32,
+            normal: n / taps.len() as f32,
+        }
+    }
+
+    fn grid(k: usize) -> Vec<Vec2> {
+        (0..k * k)
+            .map(|i| {
+                Vec2::new(
+                    ((i % k) as f32 + 0.5) / k as f32,
+                    ((i / k) as f32 + 0.5) / k as f32,
+                )
+            })
+            .collect()
+    }
+
+    fn best_of(n: usize, f: &dyn Fn()) -> f64 {
+        (0..n)
+            .map(|_| {
+                let t = Instant::now();
+                f();
+                t.elapsed().as_secs_f64()
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    #[test]
+    #[ignore = "a measurement, run by hand in release"]
+    fn cost_and_edge_quality() {
+        let cancel = CancelToken::new();
+        for name in ["cornell-box", "door", "spheres-smooth", "cellar"] {
+            let t = PathTracer::new(&load(name, 1024, 768));
+            let render = best_of(3, &|| {
+                let _ = crate::tracer::render_reference_with(&t, Some((1, 7)), &cancel, &|_, _| {});
+            });
+            let aux = best_of(3, &|| {
+                let _ = aux_maps(&t, &cancel);
+            });
+            eprintln!(
+                "{name} 1024x768: 1-spp render {render:.3} s, aux_maps {aux:.3} s ({:.0} %)",
+                100.0 * aux / render
+            );
+            // Edge quality at 256x192 against a 16x16 grid per pixel.
+            let t = PathTracer::new(&load(name, 256, 192));
+            let reference = grid(16);
+            let mut centre_taps = crate::tracer::ALBEDO_TAPS.to_vec();
+            centre_taps.push(Vec2::splat(0.5));
+            let patterns: [(&str, Vec<Vec2>); 4] = [
+                ("centre", vec![Vec2::splat(0.5)]),
+                ("2x2", crate::tracer::ALBEDO_TAPS.to_vec()),
+                ("2x2+centre", centre_taps),
+                ("4x4", grid(4)),
+            ];
+            let pixels: Vec<PixelCoord> = (0..192)
+                .flat_map(|y| (0..256).map(move |x| PixelCoord::new(x, y)))
+                .collect();
+            let r: Vec<AuxFeatures> = pixels
+                .iter()
+                .map(|&p| mean_over(&t, p, &reference))
+                .collect();
+            let report = |label: &str, f: &dyn Fn(PixelCoord) -> AuxFeatures| {
+                let (mut ea, mut en, mut worst, mut bad) = (0.0f64, 0.0f64, 0.0f32, 0usize);
+                for (p, want) in pixels.iter().zip(&r) {
+                    let got = f(*p);
+                    let da = (got.albedo - want.albedo).abs().max_element();
+                    let dn = (got.normal - want.normal).abs().max_element();
+                    ea += f64::from(da);
+                    en += f64::from(dn);
+                    worst = worst.max(da.max(dn));
+                    bad += usize::from(da.max(dn) > 0.05);
+                }
+                let k = pixels.len() as f64;
+                eprintln!(
+                    "  {label:>11}: mean |albedo err| {:.5}, mean |normal err| {:.5}, worst {worst:.3}, pixels off by > 0.05: {bad}",
+                    ea / k,
+                    en / k
+                );
+            };
+            for (label, taps) in &patterns {
+                report(label, &|p| mean_over(&t, p, taps));
+            }
+            report("adaptive", &|p| t.aux_at(p));
+            let refined = pixels
+                .iter()
+                .filter(|&&p| {
+                    let c = CORNERS.map(|i| t.aux_tap(p, grid_tap(i)));
+                    !c.iter().all(|f| agree(f, &c[0]))
+                })
+                .count();
+            eprintln!(
+                "  adaptive refines {refined} of {} pixels ({:.1} %)",
+                pixels.len(),
+                100.0 * refined as f64 / pixels.len() as f64
+            );
         }
     }
 }
