@@ -227,7 +227,7 @@ impl PathTracer {
     /// The BSDF of the surface at a hit (textures looked up at its position and
     /// texture coordinates).
     #[inline]
-    fn bsdf_at(&self, s: &super::bvh::Surface) -> Bsdf {
+    pub(super) fn bsdf_at(&self, s: &super::bvh::Surface) -> Bsdf {
         let tex = |t| super::texture::eval(t, s.p, s.uv, &self.images);
         match self.materials.get(s.info.material as usize) {
             Some(super::ResolvedMaterial::Fixed(b)) => *b,

@@ -918,6 +918,10 @@ impl PixelOracle for PathTracer {
         self.centre_hit(p).1
     }
 
+    fn aux_features(&self, p: PixelCoord) -> AuxFeatures {
+        self.aux_at(p)
+    }
+
     fn centre_hit(&self, p: PixelCoord) -> (ObjectId, Vec3) {
         let d = self.camera.direction(p.x, p.y, glam::Vec2::splat(0.5));
         self.camera_hit(p.x, p.y, d)
