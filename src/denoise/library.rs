@@ -75,17 +75,23 @@ pub(super) struct SearchPlan {
 }
 
 impl SearchPlan {
-    /// The order of the module doc: `$GLIMPSE_OIDN_DIR` (the folder or its `lib/`), the
-    /// checkout's `target/oidn/lib` (where `scripts/oidn.sh` installs, right for `cargo
-    /// run` and `cargo test`), the executable's folder and its `../oidn/lib`,
-    /// `../../oidn/lib` (so `target/release/glimpse` and `target/debug/deps/*` find
-    /// `target/oidn/lib` under any target directory), then the system loader.
+    /// The order of the module doc: `$GLIMPSE_OIDN_DIR` (the folder or its `lib/`) and
+    /// nothing else when it is set (what a person names is what is used: a wrong folder
+    /// is an error, not a silent fallback to another library); else the checkout's
+    /// `target/oidn/lib` (where `scripts/oidn.sh` installs, right for `cargo run` and
+    /// `cargo test`), the executable's folder and its `../oidn/lib`, `../../oidn/lib` (so
+    /// `target/release/glimpse` and `target/debug/deps/*` find `target/oidn/lib` under any
+    /// target directory), then the system loader.
     pub fn new(env_dir: Option<PathBuf>, checkout: &Path, exe: Option<&Path>) -> Self {
         let mut folders = Vec::new();
         if let Some(dir) = env_dir.filter(|d| !d.as_os_str().is_empty()) {
             let lib = dir.join("lib");
             folders.push((dir, "GLIMPSE_OIDN_DIR"));
             folders.push((lib, "GLIMPSE_OIDN_DIR/lib"));
+            return Self {
+                folders,
+                system: None,
+            };
         }
         folders.push((
             checkout.join("target/oidn/lib"),

@@ -4,9 +4,9 @@
 //! The library is loaded at run time (`library`), so a machine without it builds and runs
 //! every mode that does not denoise, and one that asks for denoising gets
 //! [`DenoiseError::Missing`] naming where it looked and how to add it
-//! (`bash scripts/oidn.sh`). Search order: `$GLIMPSE_OIDN_DIR` (or its `lib/`), the
-//! checkout's `target/oidn/lib`, the executable's folder and its `../oidn/lib` and
-//! `../../oidn/lib`, then the system loader.
+//! (`bash scripts/oidn.sh`). Search order: `$GLIMPSE_OIDN_DIR` (or its `lib/`) alone when
+//! it is set; else the checkout's `target/oidn/lib`, the executable's folder and its
+//! `../oidn/lib` and `../../oidn/lib`, then the system loader.
 //!
 //! Inputs are sanitised before they reach OIDN: a NaN or infinite pixel makes the network
 //! paint a large white blotch (RenderKit/oidn#210, the maintainer's advice is to clamp in

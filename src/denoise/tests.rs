@@ -155,11 +155,7 @@ fn input_scale_must_be_positive_and_finite() {
 fn missing_library_names_every_place_searched_and_how_to_install() {
     let empty = tempfile::tempdir().unwrap();
     let exe = empty.path().join("bin/glimpse");
-    let mut plan = SearchPlan::new(
-        Some(empty.path().to_path_buf()),
-        &empty.path().join("checkout"),
-        Some(&exe),
-    );
+    let mut plan = SearchPlan::new(None, &empty.path().join("checkout"), Some(&exe));
     plan.system = Some("libOpenImageDenoise_not_here.so.2".into());
     let e = match Denoiser::open(&plan) {
         Err(e) => e,
@@ -179,21 +175,34 @@ fn missing_library_names_every_place_searched_and_how_to_install() {
     ] {
         assert!(text.contains(needle), "no {needle:?} in:\n{text}");
     }
+    // GLIMPSE_OIDN_DIR, when set, is the only place searched.
+    let plan = SearchPlan::new(
+        Some(empty.path().to_path_buf()),
+        &empty.path().join("checkout"),
+        Some(&exe),
+    );
+    let text = Denoiser::open(&plan)
+        .err()
+        .expect("nothing there")
+        .to_string();
     let env_dir = format!("{}/libOpenImageDenoise.so.2", empty.path().display());
     assert!(text.contains(&env_dir), "{text}");
+    assert!(!text.contains("checkout/target/oidn/lib"), "{text}");
 }
 
 #[test]
-fn search_order_is_env_checkout_executable_then_system() {
+fn search_order_is_env_alone_or_checkout_executable_then_system() {
     let plan = SearchPlan::new(
         Some("/o".into()),
         Path::new("/c"),
         Some(Path::new("/t/release/glimpse")),
     );
     let folders: Vec<_> = plan.folders.iter().map(|(f, _)| f.clone()).collect();
+    assert_eq!(folders, ["/o", "/o/lib"].map(std::path::PathBuf::from));
+    assert_eq!(plan.system, None);
+    let plan = SearchPlan::new(None, Path::new("/c"), Some(Path::new("/t/release/glimpse")));
+    let folders: Vec<_> = plan.folders.iter().map(|(f, _)| f.clone()).collect();
     let expect = [
-        "/o",
-        "/o/lib",
         "/c/target/oidn/lib",
         "/t/release",
         "/t/release/../oidn/lib",

@@ -72,7 +72,11 @@ pub fn picture(
         Image::from_vec(
             a.width(),
             a.height(),
-            a.pixels().iter().zip(b.pixels()).map(|(a, b)| f(*a, *b)).collect(),
+            a.pixels()
+                .iter()
+                .zip(b.pixels())
+                .map(|(a, b)| f(*a, *b))
+                .collect(),
         )
         .expect("halves of one size")
     };
