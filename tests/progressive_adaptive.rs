@@ -1,7 +1,8 @@
-//! The adaptive mode on the real path tracer, without the denoiser (its own tests sit
-//! beside `denoise/`): t0 = 0 is the reference bit for bit, the default t0 spends fewer
-//! samples where the picture is calm, frames stream in passes, budgets hold, and the
-//! extremes (black, blinding, tiny and 1-D images) come out finite.
+//! The adaptive mode on the real path tracer: t0 = 0 without the denoiser is the
+//! reference bit for bit, the default t0 spends fewer samples where the picture is calm,
+//! frames stream in passes, budgets hold, the extremes (black, blinding, tiny and 1-D
+//! images) come out finite; with the denoiser (the real library) every pass is denoised
+//! and closer to the truth than the reference, and any mode denoises its last frame.
 
 use glimpse::cancel::CancelToken;
 use glimpse::progressive::{render, Frame, RenderOptions};
@@ -109,5 +110,84 @@ fn extremes_come_out_finite() {
         s.display.exposure = exposure.max(f32::MIN_POSITIVE);
         let (last, _) = run(&s, &raw_adaptive());
         assert!(!last.image.has_non_finite(), "exposure {exposure}");
+    }
+}
+
+/// Mean absolute difference in displayed units.
+fn mean_abs(a: &glimpse::raster::LinearImage, b: &glimpse::raster::LinearImage) -> f64 {
+    let s: f64 = a
+        .pixels()
+        .iter()
+        .zip(b.pixels())
+        .map(|(p, q)| f64::from((*p - *q).abs().element_sum()) / 3.0)
+        .sum();
+    s / a.len() as f64
+}
+
+#[test]
+fn with_the_denoiser_every_pass_is_denoised_and_closer_to_the_truth_than_the_reference() {
+    let s = cornell_box(96, 72, 64, 3, 1);
+    let opts = RenderOptions {
+        mode: Some(RenderMode::Adaptive),
+        ..RenderOptions::default()
+    };
+    let (last, frames) = run(&s, &opts);
+    assert!(
+        frames.iter().all(|f| f.stats.denoised),
+        "every frame denoised"
+    );
+    assert!(!last.image.has_non_finite());
+    let t = PathTracer::new(&s);
+    let cancel = CancelToken::new();
+    let reference = render_reference(&t, &cancel, &|_, _| {}).unwrap();
+    let truth =
+        glimpse::tracer::render_reference_with(&t, Some((1024, 99)), &cancel, &|_, _| {}).unwrap();
+    let (ours, theirs) = (mean_abs(&last.image, &truth), mean_abs(&reference, &truth));
+    assert!(
+        ours < theirs,
+        "adaptive + denoiser {ours:.4} vs reference {theirs:.4} ({} of {} samples)",
+        last.stats.samples_traced,
+        96 * 72 * 64
+    );
+    // Asked not to denoise, the same mode keeps its passes raw and says so.
+    let raw = run(&s, &raw_adaptive()).0;
+    assert!(!raw.stats.denoised);
+}
+
+#[test]
+fn any_mode_denoises_its_last_frame_when_asked() {
+    let s = cornell_box(48, 36, 8, 3, 1);
+    let t = PathTracer::new(&s);
+    let raw = render_reference(&t, &CancelToken::new(), &|_, _| {}).unwrap();
+    for mode in [
+        RenderMode::Reference,
+        RenderMode::Progressive,
+        RenderMode::Guo,
+    ] {
+        let opts = RenderOptions {
+            mode: Some(mode),
+            denoise: Some(true),
+            ..RenderOptions::default()
+        };
+        let (last, frames) = run(&s, &opts);
+        assert!(
+            last.stats.denoised && last.stats.denoise_ms > 0.0,
+            "{mode:?}"
+        );
+        assert!(
+            frames.last().is_some_and(|f| f.last && f.stats.denoised),
+            "{mode:?}"
+        );
+        assert!(
+            frames.iter().rev().skip(1).all(|f| !f.stats.denoised),
+            "{mode:?}"
+        );
+        assert!(!last.image.has_non_finite(), "{mode:?}");
+        if mode == RenderMode::Reference {
+            assert!(
+                mean_abs(&last.image, &raw) > 0.0,
+                "the reference was denoised"
+            );
+        }
     }
 }
