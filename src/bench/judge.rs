@@ -130,7 +130,7 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
         let reference = tracer::render_reference(case.tracer, case.cancel, &|_, _| {})?;
         ref_times.push(ms(t));
         let t = Instant::now();
-        let prog = render_progressive(&scene, case)?;
+        let prog = render_mode(&scene, case, RenderMode::Progressive)?;
         prog_times.push(ms(t));
         last = Some((reference, prog));
     }
@@ -193,11 +193,11 @@ pub struct SweepPoint {
     pub q: f64,
 }
 
-/// The t0 sweep at `ppd`: one progressive run per t0, timed against `reference_ms`.
+/// The t0 sweep at `ppd`: one run of `mode` per t0, timed against `reference_ms`.
 pub fn sweep(
     case: &Case,
-    reference: &LinearImage,
-    reference_ms: f64,
+    (reference, reference_ms): (&LinearImage, f64),
+    mode: RenderMode,
     ppd: f32,
     t0s: &[f32],
 ) -> anyhow::Result<Vec<SweepPoint>> {
@@ -209,7 +209,7 @@ pub fn sweep(
             scene.display.pixels_per_degree = ppd;
             scene.progressive.t0 = t0;
             let t = Instant::now();
-            let f = render_progressive(&scene, case)?;
+            let f = render_mode(&scene, case, mode)?;
             Ok(SweepPoint {
                 ppd,
                 t0,
@@ -225,9 +225,9 @@ pub fn sweep(
         .collect()
 }
 
-fn render_progressive(scene: &Scene, case: &Case) -> anyhow::Result<progressive::Frame> {
+fn render_mode(scene: &Scene, case: &Case, mode: RenderMode) -> anyhow::Result<progressive::Frame> {
     let opts = RenderOptions {
-        mode: Some(RenderMode::Progressive),
+        mode: Some(mode),
         ..RenderOptions::default()
     };
     Ok(progressive::render(

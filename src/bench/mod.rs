@@ -194,6 +194,8 @@ pub struct SceneResult {
     pub methods: Vec<MethodResult>,
     /// The t0 sweep at [`SWEEP_CONDITIONS`].
     pub sweep: Vec<SweepPoint>,
+    /// The same sweep in adaptive mode (denoised).
+    pub adaptive_sweep: Vec<SweepPoint>,
     /// The judge against the truth at each of [`BenchConfig::conditions`].
     pub conditions: Vec<Condition>,
     /// (normal exposure, exposure × 16) pixel fractions, for dark scenes.
@@ -552,7 +554,7 @@ fn bench_scene(
         runs,
         cancel: &cancel,
     };
-    let (sweep, conditions) =
+    let (sweep, adaptive_sweep, conditions) =
         against_truth(&case, &timed.reference, timed.reference_ms, cfg, progress)?;
     let exposure_check = exposure_check(&renders, scene, &timed.prog)?;
     write_images(
@@ -575,6 +577,7 @@ fn bench_scene(
         noise_floor: rows.noise_floor,
         methods,
         sweep,
+        adaptive_sweep,
         conditions,
         exposure_check,
         time_split,
@@ -821,23 +824,26 @@ fn exposure_check(
 }
 
 /// A bundled scene against its truth: the t0 sweep at [`SWEEP_CONDITIONS`] (three t0 at
-/// the first quick condition in quick mode), then every condition of the run.
+/// the first quick condition in quick mode), progressive then adaptive, then every
+/// condition of the run.
 fn against_truth(
     case: &Case,
     reference: &LinearImage,
     reference_ms: f64,
     cfg: &BenchConfig,
     progress: &Progress,
-) -> anyhow::Result<(Vec<SweepPoint>, Vec<Condition>)> {
+) -> anyhow::Result<(Vec<SweepPoint>, Vec<SweepPoint>, Vec<Condition>)> {
     let (t0s, sweep_ppds): (&[f32], &[f32]) = if cfg.quick {
         (&[0.5, 1.0, 2.0], &QUICK_CONDITIONS[..1])
     } else {
         (&[0.25, 0.5, 1.0, 2.0, 4.0], &SWEEP_CONDITIONS)
     };
-    let mut sweep = Vec::new();
+    let (mut sweep, mut adaptive) = (Vec::new(), Vec::new());
     for &p in sweep_ppds {
         progress.stage(&format!("the t0 sweep at {p} ppd"));
-        sweep.extend(judge::sweep(case, reference, reference_ms, p, t0s)?);
+        let r = (reference, reference_ms);
+        sweep.extend(judge::sweep(case, r, RenderMode::Progressive, p, t0s)?);
+        adaptive.extend(judge::sweep(case, r, RenderMode::Adaptive, p, t0s)?);
     }
     let conditions = cfg
         .conditions
@@ -847,7 +853,7 @@ fn against_truth(
             judge::at_condition(case, p, &cfg.out_dir)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok((sweep, conditions))
+    Ok((sweep, adaptive, conditions))
 }
 
 /// [`TimeSplit`]: the progressive run's traced pixels traced again, alone (median of

@@ -349,18 +349,30 @@ pub fn sweep_check(scene: &str, ppd: f32, points: &[&SweepPoint]) -> SweepCheck 
     }
 }
 
-/// Every bundled scene's sweep, per condition.
-fn sweep_checks(scenes: &[SceneResult]) -> Vec<SweepCheck> {
+/// Every bundled scene's sweep (the one `of` picks), per condition.
+fn sweep_checks(scenes: &[SceneResult], of: Sweep) -> Vec<SweepCheck> {
     let mut out = Vec::new();
     for r in scenes {
-        let mut ppds: Vec<f32> = r.sweep.iter().map(|p| p.ppd).collect();
+        let points = of(r);
+        let mut ppds: Vec<f32> = points.iter().map(|p| p.ppd).collect();
         ppds.dedup();
         for ppd in ppds {
-            let pts: Vec<&SweepPoint> = r.sweep.iter().filter(|p| p.ppd == ppd).collect();
+            let pts: Vec<&SweepPoint> = points.iter().filter(|p| p.ppd == ppd).collect();
             out.push(sweep_check(&r.scene, ppd, &pts));
         }
     }
     out
+}
+
+/// Which of a scene's sweeps: the progressive loop's or the adaptive mode's.
+type Sweep = fn(&SceneResult) -> &[SweepPoint];
+
+fn progressive_sweep(r: &SceneResult) -> &[SweepPoint] {
+    &r.sweep
+}
+
+fn adaptive_sweep(r: &SceneResult) -> &[SweepPoint] {
+    &r.adaptive_sweep
 }
 
 /// How many of `conds` pass `pass`.
@@ -397,7 +409,12 @@ pub fn summary(study: &Study) -> Vec<TargetCheck> {
     if !study.corpus.is_empty() {
         t.extend(corpus_targets(&study.corpus));
     }
-    t.extend(sweep_target(&study.scenes));
+    t.extend(sweep_target(
+        &study.scenes,
+        progressive_sweep,
+        "progressive",
+    ));
+    t.extend(sweep_target(&study.scenes, adaptive_sweep, "adaptive"));
     t
 }
 
@@ -492,8 +509,8 @@ fn corpus_targets(corpus: &[CorpusResult]) -> Vec<TargetCheck> {
 }
 
 /// Every bundled scene's t0 sweep is monotone and spans a cheap preview to Q ≤ 0.9.
-fn sweep_target(scenes: &[SceneResult]) -> Option<TargetCheck> {
-    let sweeps = sweep_checks(scenes);
+fn sweep_target(scenes: &[SceneResult], of: Sweep, what: &str) -> Option<TargetCheck> {
+    let sweeps = sweep_checks(scenes, of);
     if sweeps.is_empty() {
         return None;
     }
@@ -517,7 +534,7 @@ fn sweep_target(scenes: &[SceneResult]) -> Option<TargetCheck> {
         .collect();
     Some(TargetCheck {
         target: format!(
-            "t0 sweep monotone, from ≤ {SWEEP_PREVIEW_TIME}× time to Q ≤ {SWEEP_BEST_Q}"
+            "{what} t0 sweep monotone, from ≤ {SWEEP_PREVIEW_TIME}× time to Q ≤ {SWEEP_BEST_Q}"
         ),
         met: misses.is_empty(),
         detail: format!(
@@ -569,7 +586,8 @@ pub fn write(
     std::fs::write(&p, &md).with_context(|| format!("cannot write {}", p.display()))?;
     let json = serde_json::json!({
         "summary": targets,
-        "sweep_checks": sweep_checks(&study.scenes),
+        "sweep_checks": sweep_checks(&study.scenes, progressive_sweep),
+        "adaptive_sweep_checks": sweep_checks(&study.scenes, adaptive_sweep),
         "scenes": study.scenes,
         "corpus": study.corpus,
         "peer": peer.as_ref().ok(),
@@ -769,22 +787,29 @@ fn sweep_section(study: &Study) -> String {
         "## The knob: t0 sweep (time × reference, Q)\n\nOne progressive run per point; \
          `tradeoff.svg` plots Q against time per scene and condition (lower-left is better).\n\n",
     );
+    s.push_str(&sweep_table(study, progressive_sweep));
+    s.push_str("\nThe same sweep in adaptive mode (denoised), one run per point:\n\n");
+    s.push_str(&sweep_table(study, adaptive_sweep));
+    s
+}
+
+/// One row per scene and condition of the sweep `of` picks, one column per t0.
+fn sweep_table(study: &Study, of: Sweep) -> String {
     let mut t0s: Vec<f32> = study
         .scenes
         .iter()
-        .flat_map(|r| r.sweep.iter().map(|p| p.t0))
+        .flat_map(|r| of(r).iter().map(|p| p.t0))
         .collect();
     t0s.sort_by(f32::total_cmp);
     t0s.dedup();
-    s.push_str("| scene | ppd |");
+    let mut s = String::from("| scene | ppd |");
     for t0 in &t0s {
         let _ = write!(s, " t0 = {t0} |");
     }
     s.push_str(" monotone, ≤ 0.3× to Q ≤ 0.9 |\n|---|---:|");
     s.push_str(&"---:|".repeat(t0s.len()));
     s.push_str("---|\n");
-    let checks = sweep_checks(&study.scenes);
-    for c in &checks {
+    for c in &sweep_checks(&study.scenes, of) {
         let r = study
             .scenes
             .iter()
@@ -792,25 +817,20 @@ fn sweep_section(study: &Study) -> String {
             .expect("checks come from these scenes");
         let _ = write!(s, "| {} | {} |", c.scene, c.ppd);
         for t0 in &t0s {
-            match r.sweep.iter().find(|p| p.ppd == c.ppd && p.t0 == *t0) {
+            match of(r).iter().find(|p| p.ppd == c.ppd && p.t0 == *t0) {
                 Some(p) => {
                     let _ = write!(s, " {:.2}×, Q {:.2} |", p.time_ratio, p.q);
                 }
                 None => s.push_str(" – |"),
             }
         }
-        let _ = writeln!(
-            s,
-            " {} ({}) |",
-            yes_no(c.met()),
-            if c.monotone {
-                "monotone"
-            } else {
-                "not monotone"
-            }
-        );
+        let shape = if c.monotone {
+            "monotone"
+        } else {
+            "not monotone"
+        };
+        let _ = writeln!(s, " {} ({shape}) |", yes_no(c.met()));
     }
-    s.push('\n');
     s
 }
 
