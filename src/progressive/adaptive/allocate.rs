@@ -5,12 +5,13 @@
 //! about linearly with the contrast of the error, so a tile at visible error v with n
 //! samples per pixel needs about n·(v/t0)² to reach t0. A pass multiplies a tile's
 //! samples by at least [`MIN_GROWTH`] (a tile just above t0 would otherwise creep up by a
-//! few per cent a pass, each pass paying a whole judgement) and at most [`MAX_GROWTH`]
+//! few per cent a pass, each pass paying two denoises and a judgement) and at most [`MAX_GROWTH`]
 //! (the estimate is a prediction; the next pass checks it), and the pass as a whole adds
 //! at most the samples traced so far, so the error is re-measured at geometric intervals.
 
-/// A tile's samples grow at least this much in one pass.
-pub const MIN_GROWTH: f64 = 1.5;
+/// A tile's samples grow at least this much in one pass (each pass costs two denoises
+/// and a judgement, so passes double at least).
+pub const MIN_GROWTH: f64 = 2.0;
 /// A tile's samples grow at most this much in one pass.
 pub const MAX_GROWTH: u32 = 4;
 
@@ -115,8 +116,8 @@ mod tests {
     fn samples_grow_with_the_square_of_the_visible_error() {
         // 1.5 JND at 8 spp: 8·2.25 = 18 → 10 more.
         assert_eq!(plan(&[tile(8, 1.5, 1.0)], &OPEN), [10]);
-        // 1.1 JND would want 10 (+2): at least half as many again, 12.
-        assert_eq!(plan(&[tile(8, 1.1, 1.0)], &OPEN), [4]);
+        // 1.1 JND would want 10 (+2): at least as many again, 16.
+        assert_eq!(plan(&[tile(8, 1.1, 1.0)], &OPEN), [8]);
         // 10 JND would want 800: capped at 4× per pass.
         assert_eq!(plan(&[tile(8, 10.0, 1.0)], &OPEN), [24]);
     }

@@ -147,7 +147,7 @@ pub fn render(
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
     for pass in 0.. {
         let traced = lp.trace(oracle, &extra, cancel)?;
-        let visible = lp.judge(pass);
+        let (pic, visible) = lp.judge(pass);
         let tiles = lp.tiles(visible.as_ref());
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
             return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
@@ -162,8 +162,9 @@ pub fn render(
             };
             return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
         }
-        let image = lp.reconstruct(Quality::Fast);
-        on_frame(&lp.frame(pass, image, visible, &extra, false));
+        // A streamed pass shows the mean of its two reconstructed halves (already made
+        // for the error estimate); only the last frame reconstructs all the samples at once.
+        on_frame(&lp.frame(pass, pic.image, visible, &extra, false));
         extra = next;
     }
     unreachable!("the pass loop only returns")
@@ -190,9 +191,9 @@ impl Loop<'_> {
         Ok(traced)
     }
 
-    /// The visible error left in the pass's picture, from its halves reconstructed at
-    /// the streamed quality.
-    fn judge(&mut self, pass: u32) -> Option<Image<f32>> {
+    /// The pass's picture (the mean of its halves reconstructed at the streamed quality)
+    /// and the visible error left in it.
+    fn judge(&mut self, pass: u32) -> (Picture, Option<Image<f32>>) {
         let t = Instant::now();
         let (a, b) = self.pixels.halves();
         let pic = match estimate::picture((&a, &b), &self.filter, Quality::Fast) {
@@ -210,7 +211,7 @@ impl Loop<'_> {
         };
         let visible = estimate::visible_error(&self.model, &pic, &params);
         self.stats.metric_ms += ms(t.elapsed());
-        visible
+        (pic, visible)
     }
 
     /// The picture of all the samples so far, reconstructed at `quality`; the raw mean if
