@@ -54,14 +54,17 @@ pub struct RenderArgs {
     /// Override `progressive.t0` (JND): a triangle whose distance is below it is final,
     /// and the lower it is (down to 0.25), the more the interpolation averages away noise.
     /// Higher is faster and less accurate; 0 traces every pixel (the reference exactly).
+    /// Adaptive mode: the visible error (JND) at which a tile needs no more samples; 0
+    /// gives every pixel all its samples (the reference exactly without the denoiser).
     #[arg(long, value_parser = parse_t0)]
     pub t0: Option<f32>,
     /// Progressive and Guo modes: stop after tracing this many pixels, given as a count
     /// (`20000`) or a share of the image (`30%`). The last frame is the answer so far.
     #[arg(long, value_parser = parse_pixel_budget)]
     pub max_pixels: Option<PixelBudget>,
-    /// Progressive and Guo modes: stop after this many seconds (checked between batches of
-    /// pixels; the first sample set is always traced whole).
+    /// Progressive, Guo and adaptive modes: stop after this many seconds (checked between
+    /// batches of pixels; the first sample set, or adaptive's first pass, is always traced
+    /// whole).
     #[arg(long, value_parser = parse_seconds)]
     pub max_time: Option<std::time::Duration>,
     /// Progressive mode: classify on the raw frame distances, as F&P04 published them
