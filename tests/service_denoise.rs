@@ -1,7 +1,8 @@
 //! The denoiser over HTTP, against the real server and the real library: an adaptive job
 //! streams denoised frames and says so; a server without the library refuses a job that
 //! asks to denoise (503 `denoiser_unavailable`, naming what is missing and how to add
-//! it) and still takes every job that does not.
+//! it) and still takes every job that does not; a cluster's worker without it fails such
+//! a job with the same code instead of returning it noisy.
 
 mod common;
 
@@ -114,4 +115,65 @@ async fn without_the_library_a_job_that_denoises_is_refused_and_others_run() {
         let job = common::job(&c, &base, &id).await;
         assert_eq!(job["stats"]["denoised"], false, "{job}");
     }
+}
+
+#[tokio::test]
+async fn a_worker_without_the_library_fails_a_denoising_job_saying_why() {
+    let url = common::fresh_pg_database().await;
+    let dir = tempfile::tempdir().unwrap();
+    let empty = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let addr = format!("127.0.0.1:{port}");
+    let data = dir.path().to_str().unwrap();
+    let api = [
+        "serve",
+        "--addr",
+        &addr,
+        "--workers",
+        "0",
+        "--database",
+        &url,
+        "--data",
+        data,
+    ];
+    let _api = common::glimpse(&api, &dir.path().join("api.log"), "warn");
+    let c = reqwest::Client::new();
+    let base = format!("http://{addr}");
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    while c.get(format!("{base}/healthz")).send().await.is_err() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the API node did not come up"
+        );
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    // The API node has the library: the job is accepted.
+    let r = post(&c, &base, adaptive(None)).await;
+    assert_eq!(r.status(), 201);
+    let id = r.json::<serde_json::Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let worker = std::process::Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .args([
+            "worker",
+            "--database",
+            &url,
+            "--data",
+            data,
+            "--threads",
+            "1",
+        ])
+        .env("GLIMPSE_OIDN_DIR", empty.path())
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let _worker = common::Proc(worker);
+    common::wait_state(&c, &base, &id, "failed", Duration::from_secs(60)).await;
+    let job = common::job(&c, &base, &id).await;
+    assert_eq!(job["error"]["code"], "denoiser_unavailable", "{job}");
+    let msg = job["error"]["message"].as_str().unwrap();
+    assert!(msg.contains("bash scripts/oidn.sh"), "{msg}");
 }

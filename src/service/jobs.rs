@@ -1219,22 +1219,34 @@ fn scene_of(
     live: &Arc<LiveJob>,
     input: SceneInput,
 ) -> Result<crate::scene::Scene, Outcome> {
-    let json = match input {
-        SceneInput::Parsed(s) => return Ok(*s),
-        SceneInput::Document(json) => json,
+    let scene = match input {
+        SceneInput::Parsed(s) => *s,
+        SceneInput::Document(json) => {
+            let limits = inner.limits;
+            match crate::cancel::abandonable(&live.cancel, move || {
+                parse_scene(&json, &SceneOrigin::Request, &limits)
+            }) {
+                Err(crate::cancel::Cancelled) => return Err(Outcome::Cancelled),
+                Ok(Ok(s)) => s,
+                // Accepted earlier, refused now (limits changed across a restart).
+                Ok(Err(e)) => {
+                    return Err(Outcome::Failed(JobError::new(
+                        ErrorCode::InvalidScene,
+                        e.to_string(),
+                    )))
+                }
+            }
+        }
     };
-    let limits = inner.limits;
-    match crate::cancel::abandonable(&live.cancel, move || {
-        parse_scene(&json, &SceneOrigin::Request, &limits)
-    }) {
-        Err(crate::cancel::Cancelled) => Err(Outcome::Cancelled),
-        Ok(Ok(s)) => Ok(s),
-        // Accepted earlier, refused now (limits changed across a restart).
-        Ok(Err(e)) => Err(Outcome::Failed(JobError::new(
-            ErrorCode::InvalidScene,
-            e.to_string(),
-        ))),
+    // The node that took the submission had the denoiser; this one (another node of a
+    // cluster) must too, or the job fails saying so rather than coming back noisy.
+    if let Err(e) = crate::progressive::denoiser_for(&scene, &Default::default()) {
+        return Err(Outcome::Failed(JobError::new(
+            ErrorCode::DenoiserUnavailable,
+            format!("this node cannot denoise: {e}"),
+        )));
     }
+    Ok(scene)
 }
 /// Publishes each frame of a running render: its progress with the time left, the
 /// counters, the kept iterations, the watchers.
