@@ -212,7 +212,7 @@ impl SampleSum {
             self.sum += v;
             let d = v.as_dvec3();
             self.sum_sq += d * d;
-            if self.next % 2 == 0 {
+            if self.next.is_multiple_of(2) {
                 self.even_sum += v;
                 self.even_kept += 1;
             }

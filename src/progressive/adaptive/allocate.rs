@@ -76,7 +76,8 @@ fn wanted(t: &Tile, l: &PassLimits) -> u32 {
     if l.t0 <= 0.0 {
         return room;
     }
-    if !(t.visible > l.t0) {
+    // A NaN error (an unjudged tile is +∞, not NaN) asks for nothing.
+    if t.visible.is_nan() || t.visible <= l.t0 {
         return 0;
     }
     let ratio = f64::from(t.visible / l.t0);
