@@ -161,11 +161,7 @@ impl Cluster {
             &self.logs.path().join(format!("{name}.log")),
         );
         let base = format!("http://{addr}");
-        let deadline = Instant::now() + Duration::from_secs(30);
-        while self.c.get(format!("{base}/healthz")).send().await.is_err() {
-            assert!(Instant::now() < deadline, "{name} did not come up");
-            tokio::time::sleep(Duration::from_millis(25)).await;
-        }
+        common::wait_up(&self.c, &base, Duration::from_secs(30)).await;
         (p, base)
     }
 

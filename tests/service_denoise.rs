@@ -21,6 +21,10 @@ fn adaptive(denoise: Option<bool>) -> String {
     s
 }
 
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text).expect("a JSON document")
+}
+
 async fn post(c: &reqwest::Client, base: &str, body: String) -> reqwest::Response {
     c.post(format!("{base}/v1/jobs"))
         .header("content-type", "application/json")
@@ -37,12 +41,7 @@ async fn an_adaptive_job_streams_denoised_frames_and_says_so() {
     let c = reqwest::Client::new();
     let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
     let base = format!("http://127.0.0.1:{port}");
-    let r = post(&c, &base, adaptive(None)).await;
-    assert_eq!(r.status(), 201);
-    let id = r.json::<serde_json::Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
+    let id = common::submit(&c, &base, &json(&adaptive(None))).await;
     let (mut ws, _) =
         tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/v1/jobs/{id}/stream"))
             .await
@@ -105,12 +104,7 @@ async fn without_the_library_a_job_that_denoises_is_refused_and_others_run() {
     }
     // Adaptive without the denoiser, and a plain progressive job, run.
     for body in [adaptive(Some(false)), LIT_SCENE.to_owned()] {
-        let r = post(&c, &base, body).await;
-        assert_eq!(r.status(), 201);
-        let id = r.json::<serde_json::Value>().await.unwrap()["id"]
-            .as_str()
-            .unwrap()
-            .to_owned();
+        let id = common::submit(&c, &base, &json(&body)).await;
         common::wait_state(&c, &base, &id, "succeeded", Duration::from_secs(60)).await;
         let job = common::job(&c, &base, &id).await;
         assert_eq!(job["stats"]["denoised"], false, "{job}");

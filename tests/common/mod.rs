@@ -107,17 +107,22 @@ pub async fn spawn(
         cmd.env(k, v);
     }
     let p = Proc(cmd.spawn().unwrap());
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while client
-        .get(format!("http://127.0.0.1:{port}/healthz"))
-        .send()
-        .await
-        .is_err()
-    {
-        assert!(Instant::now() < deadline, "server did not come up");
+    wait_up(
+        client,
+        &format!("http://127.0.0.1:{port}"),
+        Duration::from_secs(20),
+    )
+    .await;
+    p
+}
+
+/// Waits until the server at `base` answers `/healthz` (any status), at most `within`.
+pub async fn wait_up(client: &reqwest::Client, base: &str, within: Duration) {
+    let deadline = Instant::now() + within;
+    while client.get(format!("{base}/healthz")).send().await.is_err() {
+        assert!(Instant::now() < deadline, "{base} did not come up");
         tokio::time::sleep(Duration::from_millis(25)).await;
     }
-    p
 }
 
 /// `POST /v1/jobs` with `scene`; asserts 201 and returns the job id.
