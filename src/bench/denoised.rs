@@ -8,6 +8,7 @@
 
 use super::flip::flip;
 use super::judge::{ratio, Case};
+use super::objects::{object_colours, worst_ratio};
 use super::{median, ms};
 use crate::denoise::{Aux, Denoiser, Quality};
 use crate::progressive::{self, uniform, RenderOptions};
@@ -44,6 +45,9 @@ pub struct DenoisedRow {
     pub vs_uniform_oidn: f64,
     /// The auxiliary images and one `High` denoise at this size, ms.
     pub oidn_ms: f64,
+    /// Adaptive's largest object colour error ÷ its allowance (≤ 1: objects keep their
+    /// colour; 0 when no object is judged), as the progressive column's.
+    pub worst_object_ratio: f64,
 }
 
 impl DenoisedRow {
@@ -51,6 +55,11 @@ impl DenoisedRow {
     #[must_use]
     pub fn beats_uniform(&self) -> bool {
         self.vs_uniform_oidn <= VS_UNIFORM_TARGET
+    }
+
+    #[must_use]
+    pub fn objects_pass(&self) -> bool {
+        self.worst_object_ratio <= 1.0
     }
 
     /// The reference's quality in at most a quarter of its time.
@@ -127,5 +136,12 @@ pub fn judge(
         reference_oidn_flip: flip(case.truth, &reference_oidn, exposure, ppd).mean,
         vs_uniform_oidn: ratio(adaptive_flip, uniform_oidn_flip),
         oidn_ms,
+        worst_object_ratio: worst_ratio(&object_colours(
+            case.ids,
+            &adaptive.image,
+            reference,
+            case.truth,
+            exposure,
+        )),
     })
 }

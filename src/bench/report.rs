@@ -143,14 +143,14 @@ pub fn denoised_table(conditions: &[Condition]) -> String {
     let mut s = String::from(
         "| ppd | adaptive: Q at × reference time (samples) | adaptive FLIP / uniform + OIDN \
          at equal time | uniform + OIDN: FLIP (spp, ms) | reference + OIDN FLIP | \
-         Q ≤ 1 at ≤ 0.25× | ≤ 0.85× uniform + OIDN | stop |\n\
-         |---:|---:|---:|---:|---:|---|---|---|\n",
+         Q ≤ 1 at ≤ 0.25× | ≤ 0.85× uniform + OIDN | worst object (error / allowed) | stop |\n\
+         |---:|---:|---:|---:|---:|---|---|---:|---|\n",
     );
     for c in conditions {
         let Some(d) = &c.denoised else { continue };
         let _ = writeln!(
             s,
-            "| {} | {:.2} at {:.2}× ({:.2}×) | {:.2} ({:.4} / {:.4}) | {:.4} ({}, {:.0}) | {:.4} | {} | {} | {} |",
+            "| {} | {:.2} at {:.2}× ({:.2}×) | {:.2} ({:.4} / {:.4}) | {:.4} ({}, {:.0}) | {:.4} | {} | {} | {:.2} {} | {} |",
             c.ppd,
             d.q,
             d.time_ratio,
@@ -164,6 +164,8 @@ pub fn denoised_table(conditions: &[Condition]) -> String {
             d.reference_oidn_flip,
             yes_no(d.fast_enough()),
             yes_no(d.beats_uniform()),
+            d.worst_object_ratio,
+            yes_no(d.objects_pass()),
             d.stop_reason
         );
     }
@@ -182,6 +184,7 @@ fn denoised_targets(what: &str, conds: &[&Condition], share_needed: f64) -> Vec<
     };
     let needed = |n: usize| n as f64 >= share_needed * rows.len() as f64;
     let beats = count(&super::denoised::DenoisedRow::beats_uniform);
+    let objects = count(&super::denoised::DenoisedRow::objects_pass);
     let fast = count(&super::denoised::DenoisedRow::fast_enough);
     let mut times: Vec<f64> = rows.iter().map(|r| r.time_ratio).collect();
     let mut qs: Vec<f64> = rows.iter().map(|r| r.q).collect();
@@ -199,6 +202,11 @@ fn denoised_targets(what: &str, conds: &[&Condition], share_needed: f64) -> Vec<
                 "{}; median {time:.2}×, median Q {q:.2}",
                 count_with_share(fast, rows.len())
             ),
+        },
+        TargetCheck {
+            target: format!("{what}: adaptive keeps objects' colour"),
+            met: objects == rows.len(),
+            detail: count_with_share(objects, rows.len()),
         },
     ]
 }
