@@ -234,3 +234,43 @@ fn bad_flags_and_bad_scenes_are_one_clear_error() {
         "no output for a refused scene"
     );
 }
+
+#[test]
+fn asked_to_denoise_without_the_library_it_refuses_before_any_work() {
+    let d = setup();
+    let empty = tempfile::tempdir().unwrap();
+    for args in [
+        &["--output", "o.png", "--mode", "adaptive"][..],
+        &["--output", "o.png", "--mode", "reference", "--denoise"][..],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+            .current_dir(&d.path)
+            .env("GLIMPSE_OIDN_DIR", empty.path())
+            .arg("render")
+            .arg("scene.json")
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}: {err}");
+        assert!(err.contains("bash scripts/oidn.sh"), "{args:?}: {err}");
+        assert!(!d.path.join("o.png").exists(), "{args:?}: no output");
+    }
+    // Told not to denoise, adaptive runs without the library and says so.
+    let o = Command::new(env!("CARGO_BIN_EXE_glimpse"))
+        .current_dir(&d.path)
+        .env("GLIMPSE_OIDN_DIR", empty.path())
+        .args([
+            "render",
+            "scene.json",
+            "--output",
+            "o.png",
+            "--mode",
+            "adaptive",
+        ])
+        .args(["--no-denoise", "--stats", "s.json"])
+        .output()
+        .unwrap();
+    ok(&o);
+    assert_eq!(stats(&d.path, "s.json")["denoised"], false);
+}

@@ -70,12 +70,13 @@ impl DenoisedRow {
 }
 
 /// The scene (its ppd already set) judged: adaptive timed over `case.runs`, the peers
-/// once. `reference` is the reference image and `reference_ms` its median time.
+/// once. `reference` is the reference image, with its median time and its FLIP against
+/// the truth at this condition (already measured by the caller).
 pub fn judge(
     case: &Case,
     scene: &Scene,
     reference: &LinearImage,
-    reference_ms: f64,
+    (reference_ms, reference_flip): (f64, f64),
 ) -> anyhow::Result<DenoisedRow> {
     let denoiser = Denoiser::shared()?;
     let (exposure, ppd) = (scene.display.exposure, scene.display.pixels_per_degree);
@@ -117,7 +118,6 @@ pub fn judge(
     // Its render and denoise, and the auxiliary images it needs (traced once above).
     let uniform_oidn_ms = ms(t) + aux_ms;
 
-    let reference_flip = flip(case.truth, reference, exposure, ppd).mean;
     let adaptive_flip = flip(case.truth, &adaptive.image, exposure, ppd).mean;
     let uniform_oidn_flip = flip(case.truth, &uniform_oidn, exposure, ppd).mean;
     let reference_samples = f64::from(scene.width)

@@ -174,7 +174,7 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
             case,
             &scene,
             &reference,
-            reference_ms,
+            (reference_ms, reference_flip),
         )?),
     })
 }

@@ -76,6 +76,7 @@ enum Stop {
     MaxTime,
     MaxSamples,
     MaxPasses,
+    TracedRest,
 }
 
 impl Stop {
@@ -86,6 +87,7 @@ impl Stop {
             Stop::MaxTime => "max_time",
             Stop::MaxSamples => "max_samples",
             Stop::MaxPasses => "max_iterations",
+            Stop::TracedRest => "traced_rest",
         }
     }
 }
@@ -103,6 +105,8 @@ struct Loop<'a> {
     calm: u32,
     /// What the last pass's reconstruction took: the final one is reserved from the time.
     last_filter: Duration,
+    /// What the last pass's judgement took in all (reconstructions and vision model).
+    last_judge: Duration,
 }
 
 /// Renders in passes, calling `on_frame` for each; returns the last frame. `denoise`:
@@ -142,6 +146,7 @@ pub fn render(
         start,
         calm: 0,
         last_filter: Duration::ZERO,
+        last_judge: Duration::ZERO,
     };
     lp.stats.analysis_ms = ms(start.elapsed());
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
@@ -152,7 +157,13 @@ pub fn render(
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
             return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
         }
-        let next = lp.plan(&tiles);
+        let (next, finishing) = lp.plan(&tiles);
+        if finishing {
+            // The rest costs less than another pass: trace it and end (`traced_rest`).
+            on_frame(&lp.frame(pass, pic.image, visible.clone(), &extra, false));
+            lp.trace(oracle, &next, cancel)?;
+            return Ok(lp.last_frame(pass + 1, visible, &next, Stop::TracedRest, on_frame));
+        }
         if next.iter().all(|&n| n == 0) {
             // Nothing above t0 that is not at max_spp already: nothing left to spend on.
             let stop = if lp.calm > 0 {
@@ -211,6 +222,7 @@ impl Loop<'_> {
         };
         let visible = estimate::visible_error(&self.model, &pic, &params);
         self.stats.metric_ms += ms(t.elapsed());
+        self.last_judge = self.last_filter + t.elapsed();
         (pic, visible)
     }
 
@@ -304,8 +316,9 @@ impl Loop<'_> {
     }
 
     /// The next pass's samples per pixel: the tiles' plan spread over their pixels,
-    /// within the sample budget.
-    fn plan(&self, tiles: &[Tile]) -> Vec<u32> {
+    /// within the sample budget; and whether it finishes the render (the rest traced
+    /// whole, [`allocate::finish_if_cheaper`]).
+    fn plan(&self, tiles: &[Tile]) -> (Vec<u32>, bool) {
         let s = self.settings;
         let total = self.pixels.total();
         let mut budget = total.max(1);
@@ -319,7 +332,15 @@ impl Loop<'_> {
             max_spp: s.max_spp,
             budget,
         };
-        let per_tile = allocate::plan(tiles, &limits);
+        let mut per_tile = allocate::plan(tiles, &limits);
+        let sample_ms = self.stats.trace_ms / total.max(1) as f64;
+        let finishing = allocate::finish_if_cheaper(
+            tiles,
+            &mut per_tile,
+            s.max_spp,
+            (sample_ms, ms(self.last_judge)),
+            budget,
+        );
         let counts = self.pixels.counts();
         let (w, h) = (counts.width(), counts.height());
         let tw = w.div_ceil(TILE);
@@ -335,7 +356,7 @@ impl Loop<'_> {
                 extra[(y * w + x) as usize] = if t == 0 { 0 } else { target.saturating_sub(n) };
             }
         }
-        extra
+        (extra, finishing)
     }
 
     /// A frame of the render so far.
