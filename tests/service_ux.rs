@@ -20,6 +20,22 @@ fn lamp_facing_away() -> String {
     s
 }
 
+/// Submits `body`, asserts a `201` with exactly one warning, and returns it.
+async fn the_one_warning(c: &reqwest::Client, base: &str, body: String) -> String {
+    let r = c
+        .post(format!("{base}/v1/jobs"))
+        .header("content-type", "application/json")
+        .body(body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let created: serde_json::Value = r.json().await.unwrap();
+    let warnings = created["warnings"].as_array().expect("warnings");
+    assert_eq!(warnings.len(), 1, "{created}");
+    warnings[0].as_str().unwrap().to_owned()
+}
+
 #[tokio::test]
 async fn a_jobs_scene_comes_back_as_written_and_warnings_come_with_the_201() {
     let dir = tempfile::tempdir().unwrap();
@@ -80,18 +96,7 @@ async fn a_jobs_scene_comes_back_as_written_and_warnings_come_with_the_201() {
     assert_eq!(e["error"]["code"], "not_found");
 
     // A lamp facing away from everything: accepted, with the warning naming it.
-    let r = c
-        .post(format!("{base}/v1/jobs"))
-        .header("content-type", "application/json")
-        .body(lamp_facing_away())
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let created: serde_json::Value = r.json().await.unwrap();
-    let warnings = created["warnings"].as_array().expect("warnings");
-    assert_eq!(warnings.len(), 1, "{created}");
-    let w = warnings[0].as_str().unwrap();
+    let w = the_one_warning(&c, &base, lamp_facing_away()).await;
     assert!(w.contains("objects[2]") && w.contains("faces away"), "{w}");
 }
 
@@ -350,18 +355,8 @@ async fn a_lamp_facing_out_of_an_open_room_is_named_in_the_201() {
     let port = common::free_port();
     let c = reqwest::Client::new();
     let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
-    let r = c
-        .post(format!("http://127.0.0.1:{port}/v1/jobs"))
-        .header("content-type", "application/json")
-        .body(lamp_facing_out_of_an_open_room())
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 201);
-    let created: serde_json::Value = r.json().await.unwrap();
-    let warnings = created["warnings"].as_array().expect("warnings");
-    assert_eq!(warnings.len(), 1, "{created}");
-    let w = warnings[0].as_str().unwrap();
+    let base = format!("http://127.0.0.1:{port}");
+    let w = the_one_warning(&c, &base, lamp_facing_out_of_an_open_room()).await;
     assert!(
         w.starts_with("objects[5]: only") && w.contains("which way it faces"),
         "{w}"
