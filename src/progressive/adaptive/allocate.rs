@@ -67,26 +67,33 @@ pub fn plan(tiles: &[Tile], limits: &PassLimits) -> Vec<u32> {
     extra
 }
 
+/// A pass's own work (two denoises at `Fast` and the vision model) costs about what
+/// tracing this many samples per pixel over the whole image does: measured at 512² on the
+/// Cornell box (~1.0 s against ~0.25 s a sample per pixel) and the door (~0.5 s against
+/// ~0.11 s). Counted in samples, not timed, so a render's passes do not depend on the
+/// machine's load.
+pub const PASS_COST_SPP: u64 = 4;
+
 /// The endgame, as the F&P04 loop's (`traced_rest`): when taking every tile `plan` chose
-/// straight to `max_spp` costs less time than another pass's own work (its denoises and
-/// judgement, `pass_ms`), `plan` becomes that and the render ends after it. Without it,
-/// a few tiles hovering at t0 drew dozens of passes of a few hundred pixels each (the
-/// door: 64 passes, 28 s, against 9.4 s for every sample everywhere). `sample_ms`: the
-/// time of one sample so far; the rest must also fit `budget`. Returns whether it did.
+/// straight to `max_spp` costs fewer samples than another pass's own work (`pass_cost`,
+/// [`PASS_COST_SPP`] over the image), `plan` becomes that and the render ends after it.
+/// Without it, a few tiles hovering at t0 drew dozens of passes of a few hundred pixels
+/// each (the door with a finer metric: 64 passes, 28 s). The rest must also fit `budget`,
+/// and a plan that already takes every open tile to `max_spp` is left as it is. Returns
+/// whether it changed the plan.
 pub fn finish_if_cheaper(
     tiles: &[Tile],
     plan: &mut [u32],
     max_spp: u32,
-    (sample_ms, pass_ms): (f64, f64),
+    pass_cost: u64,
     budget: u64,
 ) -> bool {
-    let rest: u64 = tiles
-        .iter()
-        .zip(plan.iter())
-        .filter(|(_, &p)| p > 0)
+    let open = || tiles.iter().zip(plan.iter()).filter(|(_, &p)| p > 0);
+    let rest: u64 = open()
         .map(|(t, _)| u64::from(max_spp.saturating_sub(t.samples)) * u64::from(t.pixels))
         .sum();
-    if rest == 0 || rest > budget || rest as f64 * sample_ms > pass_ms {
+    let already = open().all(|(t, &p)| t.samples.saturating_add(p) >= max_spp);
+    if rest == 0 || already || rest > budget || rest > pass_cost {
         return false;
     }
     for (t, p) in tiles.iter().zip(plan.iter_mut()) {
@@ -192,28 +199,18 @@ mod tests {
         let mut p = plan(&tiles, &OPEN);
         assert_eq!(p, [24, 0, 180]);
         // Finishing the two open tiles: 64·(1024 − 8) + 64·(1024 − 60) samples.
-        let rest = 64.0 * (1016.0 + 964.0);
+        let rest = 64 * (1016 + 964);
         let mut q = p.clone();
-        assert!(!finish_if_cheaper(
-            &tiles,
-            &mut q,
-            1024,
-            (1.0, rest - 1.0),
-            u64::MAX
-        ));
+        assert!(!finish_if_cheaper(&tiles, &mut q, 1024, rest - 1, u64::MAX));
         assert_eq!(q, p, "dearer than a pass: unchanged");
         assert!(
-            !finish_if_cheaper(&tiles, &mut q, 1024, (1.0, rest), 100),
+            !finish_if_cheaper(&tiles, &mut q, 1024, rest, 100),
             "over budget"
         );
-        assert!(finish_if_cheaper(
-            &tiles,
-            &mut p,
-            1024,
-            (1.0, rest),
-            u64::MAX
-        ));
+        assert!(finish_if_cheaper(&tiles, &mut p, 1024, rest, u64::MAX));
         assert_eq!(p, [1016, 0, 964]);
+        // Already every open tile to max_spp (t0 = 0's plan): not an endgame.
+        assert!(!finish_if_cheaper(&tiles, &mut p, 1024, rest, u64::MAX));
     }
 
     #[test]

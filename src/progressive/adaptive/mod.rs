@@ -105,8 +105,6 @@ struct Loop<'a> {
     calm: u32,
     /// What the last pass's reconstruction took: the final one is reserved from the time.
     last_filter: Duration,
-    /// What the last pass's judgement took in all (reconstructions and vision model).
-    last_judge: Duration,
 }
 
 /// Renders in passes, calling `on_frame` for each; returns the last frame. `denoise`:
@@ -146,7 +144,6 @@ pub fn render(
         start,
         calm: 0,
         last_filter: Duration::ZERO,
-        last_judge: Duration::ZERO,
     };
     lp.stats.analysis_ms = ms(start.elapsed());
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
@@ -222,7 +219,6 @@ impl Loop<'_> {
         };
         let visible = estimate::visible_error(&self.model, &pic, &params);
         self.stats.metric_ms += ms(t.elapsed());
-        self.last_judge = self.last_filter + t.elapsed();
         (pic, visible)
     }
 
@@ -333,12 +329,12 @@ impl Loop<'_> {
             budget,
         };
         let mut per_tile = allocate::plan(tiles, &limits);
-        let sample_ms = self.stats.trace_ms / total.max(1) as f64;
+        let pixels = tiles.iter().map(|t| u64::from(t.pixels)).sum::<u64>();
         let finishing = allocate::finish_if_cheaper(
             tiles,
             &mut per_tile,
             s.max_spp,
-            (sample_ms, ms(self.last_judge)),
+            pixels * allocate::PASS_COST_SPP,
             budget,
         );
         let counts = self.pixels.counts();
