@@ -3,6 +3,7 @@
 
 pub mod compare;
 pub mod convert;
+pub mod phases;
 pub mod render;
 
 use anyhow::Context;

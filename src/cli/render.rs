@@ -1,5 +1,6 @@
 //! `glimpse render SCENE.json --output OUT.png`: one scene without a server.
 
+use super::phases::{self, Phases, StatsFile};
 use crate::cancel::CancelToken;
 use crate::progressive::eta::{self, Eta, EtaTracker, PassEta};
 use crate::progressive::{self, RenderOptions};
@@ -29,7 +30,11 @@ pub struct RenderArgs {
     /// defaults to progressive.
     #[arg(long, value_parser = parse_mode, value_name = "reference|progressive|guo|adaptive")]
     pub mode: Option<RenderMode>,
-    /// Write the final statistics as JSON.
+    /// Write the final statistics as JSON: the render's (progressive::RenderStats) and
+    /// `phases`: `load_ms` (read, import, validate), `build_ms` (BVH, lights),
+    /// `render_ms`, `samples` (paths traced), `samples_per_second`, `primitives`, and
+    /// `memory` in bytes resident: `peak_bytes` (whole command), `built_bytes` (once the
+    /// tracer is built), `final_bytes` (at the end); null where the system does not say.
     #[arg(long)]
     pub stats: Option<PathBuf>,
     /// Also write the linear HDR image as OpenEXR.
@@ -205,23 +210,19 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     // Refused before any work: a wrong extension must not cost a render.
     let format = OutputFormat::of(&a.output).map_err(anyhow::Error::msg)?;
-    let scene = load_scene(a)?;
+    let mut phases = Phases::default();
+    let t = Instant::now();
+    let mut scene = load_scene(a)?;
+    phases.load_ms = ms_since(t);
+    let t = Instant::now();
     let tracer = PathTracer::new(&scene);
-    let pixels = u64::from(scene.width) * u64::from(scene.height);
-    let opts = RenderOptions {
-        mode: a.mode,
-        max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
-        max_time: a.max_time,
-        noise_compensation: a.no_noise_compensation.then_some(false),
-        denoise: if a.denoise {
-            Some(true)
-        } else if a.no_denoise {
-            Some(false)
-        } else {
-            None
-        },
-        max_samples: a.max_samples,
-    };
+    phases.build_ms = ms_since(t);
+    phases.primitives = tracer.primitive_count() as u64;
+    // The tracer holds its own copy of every primitive: the scene's is no longer read.
+    scene.release_geometry();
+    crate::service::trim::release_free_memory();
+    phases.memory.built_bytes = phases::resident().map(|r| r.now_bytes);
+    let opts = render_options(a, &scene);
     // Asked before any work: a render that cannot denoise as asked is refused, not
     // returned noisy.
     crate::progressive::denoiser_for(&scene, &opts)?;
@@ -229,8 +230,15 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         .layers
         .as_ref()
         .map(|dir| IterationFiles::new(dir, scene.display.exposure));
+    let t = Instant::now();
     let frame = render_with_progress(&scene, &tracer, &opts, &mut iterations)?;
-    write_outputs(a, format, &frame, scene.display.exposure)?;
+    phases.render_ms = ms_since(t);
+    phases.samples = Phases::samples_of(&frame.stats, scene.render.samples_per_pixel);
+    phases.samples_per_second = Phases::rate(phases.samples, phases.render_ms);
+    let end = phases::resident();
+    phases.memory.peak_bytes = end.map(|r| r.peak_bytes);
+    phases.memory.final_bytes = end.map(|r| r.now_bytes);
+    write_outputs(a, format, &frame, &phases, scene.display.exposure)?;
     if let Some(e) = iterations.and_then(|f| f.error) {
         return Err(e);
     }
@@ -244,6 +252,29 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
         frame.stats.pixel_fraction * 100.0
     );
     Ok(())
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// The render options of the command line `a` for `scene`.
+fn render_options(a: &RenderArgs, scene: &crate::scene::Scene) -> RenderOptions {
+    let pixels = u64::from(scene.width) * u64::from(scene.height);
+    RenderOptions {
+        mode: a.mode,
+        max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
+        max_time: a.max_time,
+        noise_compensation: a.no_noise_compensation.then_some(false),
+        denoise: if a.denoise {
+            Some(true)
+        } else if a.no_denoise {
+            Some(false)
+        } else {
+            None
+        },
+        max_samples: a.max_samples,
+    }
 }
 
 /// The scene of `a`, its warnings printed, with the command line's overrides (samples
@@ -319,6 +350,7 @@ fn write_outputs(
     a: &RenderArgs,
     format: OutputFormat,
     frame: &progressive::Frame,
+    phases: &Phases,
     exposure: f32,
 ) -> anyhow::Result<()> {
     let bytes = format.encode(&frame.image, exposure)?;
@@ -329,7 +361,11 @@ fn write_outputs(
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(p) = &a.stats {
-        std::fs::write(p, serde_json::to_vec_pretty(&frame.stats)?)
+        let file = StatsFile {
+            render: &frame.stats,
+            phases,
+        };
+        std::fs::write(p, serde_json::to_vec_pretty(&file)?)
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(dir) = &a.layers {

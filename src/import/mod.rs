@@ -298,7 +298,7 @@ pub fn import_path(path: &Path, limits: &Limits) -> Result<Option<Imported>, Sce
     }
     let bytes = std::fs::read(path).map_err(|e| file_error(path, format!("cannot read: {e}")))?;
     let files = DirSource {
-        dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        dir: folder_of(path),
     };
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("scene");
     Ok(Some(import(format, name, &bytes, &files, &il)?))
@@ -307,7 +307,7 @@ pub fn import_path(path: &Path, limits: &Limits) -> Result<Option<Imported>, Sce
 /// The validated scene in the file at `path`, in any format, with the import's warnings
 /// (the validation's own warnings are in [`Scene::warnings`]).
 pub fn load_path(path: &Path, limits: &Limits) -> Result<(Scene, Vec<String>), SceneError> {
-    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let dir = folder_of(path);
     match import_path(path, limits)? {
         None => {
             let json = std::fs::read_to_string(path)
@@ -322,6 +322,16 @@ pub fn load_path(path: &Path, limits: &Limits) -> Result<(Scene, Vec<String>), S
             let scene = validate_doc(&im.doc, &SceneOrigin::Request, limits)?;
             Ok((scene, im.warnings))
         }
+    }
+}
+
+/// The folder a scene file's relative paths start from: `.` for a bare file name, whose
+/// `parent()` is the empty path: that cannot be canonicalised, and `glimpse render
+/// scene.gltf` run beside its `.bin` could not read it.
+fn folder_of(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
     }
 }
 
@@ -439,7 +449,15 @@ pub fn import_upload(
 
 #[cfg(test)]
 mod tests {
-    use super::UploadSettings;
+    use super::{folder_of, UploadSettings};
+    use std::path::Path;
+
+    #[test]
+    fn a_bare_file_name_reads_its_siblings_from_the_working_folder() {
+        assert_eq!(folder_of(Path::new("scene.gltf")), Path::new("."));
+        assert_eq!(folder_of(Path::new("a/b/scene.gltf")), Path::new("a/b"));
+        assert_eq!(folder_of(Path::new("/scene.gltf")), Path::new("/"));
+    }
 
     #[test]
     fn one_side_of_an_upload_keeps_the_files_aspect() {
