@@ -45,10 +45,12 @@ fn check_transform(cx: &mut Ctx, p: &str, t: Option<&TransformDoc>) -> Option<Xf
 /// Appends a world-space triangle unless it is degenerate (then a warning at `path`).
 /// Mirroring transforms swap two vertices so the geometric normal `(p1−p0)×(p2−p0)` is
 /// still the transformed normal.
+/// `path` is formatted only for a triangle that gets a warning: a mesh of 10^6 triangles
+/// must not format 10^6 paths.
 fn push_triangle(
     cx: &mut Ctx,
     out: &mut Vec<Triangle>,
-    path: &str,
+    path: impl FnOnce() -> String,
     x: &Xform,
     mut p: [Vec3; 3],
     mut n: Option<[Vec3; 3]>,
@@ -80,7 +82,7 @@ fn push_triangle(
     let sound = area2 > DEGENERATE_REL * lmax2 && lmax2.is_finite();
     if !sound {
         cx.warn(
-            path,
+            &path(),
             "degenerate triangle (collinear or coincident points): ignored".into(),
         );
         return;
@@ -194,7 +196,15 @@ fn quad(
     let x = x?;
     let mut tris = Vec::with_capacity(2);
     for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
-        push_triangle(cx, &mut tris, p, &x, t.map(|q| x.point(q)), None, Some(uv));
+        push_triangle(
+            cx,
+            &mut tris,
+            || p.to_string(),
+            &x,
+            t.map(|q| x.point(q)),
+            None,
+            Some(uv),
+        );
     }
     Some(Shape::Triangles {
         triangles: tris,
@@ -241,7 +251,15 @@ fn box_object(
     let mut tris = Vec::with_capacity(12);
     for (c, u, v) in faces {
         for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
-            push_triangle(cx, &mut tris, p, &x, t.map(|q| x.point(q)), None, Some(uv));
+            push_triangle(
+                cx,
+                &mut tris,
+                || p.to_string(),
+                &x,
+                t.map(|q| x.point(q)),
+                None,
+                Some(uv),
+            );
         }
     }
     Some(Shape::Triangles {
@@ -280,7 +298,7 @@ fn mesh(
         push_triangle(
             cx,
             &mut tris,
-            &format!("{idx_path}[{i}]"),
+            || format!("{idx_path}[{i}]"),
             &x,
             ix.map(|v| world[v]),
             normals.as_ref().map(|ns| ix.map(|v| ns[v])),
@@ -345,7 +363,15 @@ fn obj_file(
             .as_ref()
             .map(|ns| ix.map(|v| ns[v]))
             .filter(|n| n.iter().all(|v| v.length_squared() > 0.0));
-        push_triangle(cx, &mut tris, &pp, &x, ix.map(|v| world[v]), n, None);
+        push_triangle(
+            cx,
+            &mut tris,
+            || pp.clone(),
+            &x,
+            ix.map(|v| world[v]),
+            n,
+            None,
+        );
     }
     Some(Shape::Triangles {
         triangles: tris,
@@ -355,10 +381,15 @@ fn obj_file(
 
 /// A mesh's arrays: finite positions, one non-zero normal and one finite uv per position
 /// when given, indices in range.
+/// Every entry of a mesh's arrays finite (normals also non-zero) and every index in
+/// range; an entry's path is formatted only when it has a problem (10^6 vertices must not
+/// format 4·10^6 paths).
 fn check_mesh_arrays(cx: &mut Ctx, p: &str, m: &MeshDoc) {
-    let idx_path = format!("{p}.indices");
+    let finite = |v: &[f32]| v.iter().all(|c| c.is_finite());
     for (i, q) in m.positions.iter().enumerate() {
-        cx.vec3(&format!("{p}.positions[{i}]"), *q);
+        if !finite(q) {
+            cx.vec3(&format!("{p}.positions[{i}]"), *q);
+        }
     }
     if let Some(ns) = &m.normals {
         if ns.len() != m.positions.len() {
@@ -372,6 +403,9 @@ fn check_mesh_arrays(cx: &mut Ctx, p: &str, m: &MeshDoc) {
             );
         } else {
             for (i, n) in ns.iter().enumerate() {
+                if finite(n) && Vec3::from(*n).length_squared() != 0.0 {
+                    continue;
+                }
                 let np = format!("{p}.normals[{i}]");
                 if cx.vec3(&np, *n).length_squared() == 0.0 {
                     cx.err(&np, "must be non-zero");
@@ -390,7 +424,7 @@ fn check_mesh_arrays(cx: &mut Ctx, p: &str, m: &MeshDoc) {
                 ),
             );
         } else {
-            for (i, uv) in uvs.iter().enumerate() {
+            for (i, uv) in uvs.iter().enumerate().filter(|(_, uv)| !finite(&uv[..])) {
                 for (j, c) in uv.iter().enumerate() {
                     cx.finite(&format!("{p}.uvs[{i}][{j}]"), *c);
                 }
@@ -402,7 +436,7 @@ fn check_mesh_arrays(cx: &mut Ctx, p: &str, m: &MeshDoc) {
         for (j, &ix) in t.iter().enumerate() {
             if ix >= count {
                 cx.err(
-                    &format!("{idx_path}[{i}][{j}]"),
+                    &format!("{p}.indices[{i}][{j}]"),
                     format!("index {ix} is out of range: the mesh has {count} positions"),
                 );
             }
