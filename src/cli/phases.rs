@@ -31,6 +31,11 @@ pub struct Memory {
     /// Highest resident set of the whole command (`VmHWM`): the peak, usually in load or
     /// build.
     pub peak_bytes: Option<u64>,
+    /// Highest resident set by the end of the load (`VmHWM` then): the import's peak.
+    pub load_peak_bytes: Option<u64>,
+    /// Resident once the scene is loaded (the imported document freed): what the
+    /// validated scene costs.
+    pub loaded_bytes: Option<u64>,
     /// Resident once the tracer is built and the scene's geometry released: what the
     /// scene costs while it renders.
     pub built_bytes: Option<u64>,

@@ -33,8 +33,9 @@ pub struct RenderArgs {
     /// Write the final statistics as JSON: the render's (progressive::RenderStats) and
     /// `phases`: `load_ms` (read, import, validate), `build_ms` (BVH, lights),
     /// `render_ms`, `samples` (paths traced), `samples_per_second`, `primitives`, and
-    /// `memory` in bytes resident: `peak_bytes` (whole command), `built_bytes` (once the
-    /// tracer is built), `final_bytes` (at the end); null where the system does not say.
+    /// `memory` in bytes resident: `peak_bytes` (whole command), `load_peak_bytes` (by the
+    /// end of the load), `loaded_bytes` (the loaded scene), `built_bytes` (once the tracer
+    /// is built), `final_bytes` (at the end); null where the system does not say.
     #[arg(long)]
     pub stats: Option<PathBuf>,
     /// Also write the linear HDR image as OpenEXR.
@@ -214,6 +215,10 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     let t = Instant::now();
     let mut scene = load_scene(a)?;
     phases.load_ms = ms_since(t);
+    crate::service::trim::release_free_memory();
+    let loaded = phases::resident();
+    phases.memory.load_peak_bytes = loaded.map(|r| r.peak_bytes);
+    phases.memory.loaded_bytes = loaded.map(|r| r.now_bytes);
     let t = Instant::now();
     let tracer = PathTracer::new(&scene);
     phases.build_ms = ms_since(t);
