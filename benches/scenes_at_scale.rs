@@ -320,10 +320,13 @@ fn main() {
         );
         match measure(&t, c, runs, peer) {
             Ok((g, m)) => {
+                // Said at once too: a long run stopped early keeps what it measured.
                 rows.push(g.row("Glimpse", c.name));
+                eprintln!("{}", rows[rows.len() - 1]);
                 if let Some(m) = m {
                     rows.push(m.row("Mitsuba 3", c.name));
                     ratios.push(ratio_line(c, &g, &m));
+                    eprintln!("{}\n{}", rows[rows.len() - 1], ratios[ratios.len() - 1]);
                 }
             }
             Err(e) => println!("{}: FAILED: {e}", c.name),
