@@ -13,9 +13,9 @@
 //! resident set, the Glimpse/Mitsuba ratios, and the two pictures' mean radiance and
 //! FLIP between them (exposure 1, 28 pixels per degree).
 //!
-//! `cargo bench --bench scenes_at_scale`; `SCALE_RUNS=3` for medians of 3 (default 1,
-//! about 10 minutes on 2 shared cores; 3 runs took 28), `SCALE_SPP=N` for other samples per pixel on the
-//! veach scenes, `GLIMPSE_PUBLIC_SCENES=DIR` where the public scenes are.
+//! `cargo bench --bench scenes_at_scale`; `SCALE_RUNS=3` for medians of 3 (default 1:
+//! about 10 minutes on 2 shared cores; 3 runs took 28), `SCALE_SPP=N` for other samples
+//! per pixel on the veach scenes, `GLIMPSE_PUBLIC_SCENES=DIR` where the public scenes are.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
