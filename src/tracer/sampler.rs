@@ -8,7 +8,12 @@
 //!   Pharr et al. 2023 §8.7.3; hash-based Owen scrambling and index shuffling, Burley
 //!   2020, "Practical Hash-based Owen Scrambling", JCGT 9(4)). Every dimension (a 1-D
 //!   value or a 2-D pair) has its own shuffle of the sample index and its own scramble,
-//!   so only Sobol's first two dimensions are needed and the index has no bound.
+//!   so only Sobol's first two dimensions are needed and the index has no bound. The even
+//!   and the odd samples of a pixel are two independently scrambled sequences
+//!   (randomised QMC replicates, Owen 1997): the adaptive loop judges a pixel's error by
+//!   the difference of its even and odd halves (`SampleSum::halves`), which says the
+//!   error of their mean only when the halves are independent; two halves of one net are
+//!   not (they fill each other's gaps, and their difference overstates the error).
 //! - [`Rng`]: an independent PCG32 stream per path (plain Monte Carlo).
 //!
 //! Dimensions follow a fixed layout ([`Dim`]): the camera's 2-D pair, then per bounce the
@@ -23,9 +28,11 @@ use glam::Vec2;
 #[serde(rename_all = "lowercase")]
 pub enum SamplerKind {
     /// Padded Owen-scrambled Sobol ([`SobolSample`]).
-    #[default]
     Sobol,
-    /// An independent PCG32 stream per path ([`Rng`]).
+    /// An independent PCG32 stream per path ([`Rng`]). The default: the progressive and
+    /// adaptive loops' own tests measure them against a reference of independent samples
+    /// (a Sobol reference's lower error moves what they compare).
+    #[default]
     Independent,
 }
 
@@ -109,19 +116,25 @@ impl PathSampler for Rng {
 pub struct SobolSample {
     /// Hash of (seed, pixel): every dimension's scrambles derive from it.
     pixel: u64,
-    index: u32,
+    /// The index within the sample's replicate (the pixel's sample index / 2) with its
+    /// bits reversed: the form the shuffle scrambles (kept once per path instead of
+    /// reversed again for every dimension).
+    index_reversed: u32,
     depth: u32,
 }
 
 impl SobolSample {
-    /// Sample `index` of pixel (x, y) under `seed`.
+    /// Sample `index` of pixel (x, y) under `seed`: point `index / 2` of the pixel's
+    /// replicate `index % 2`.
     #[inline]
     #[must_use]
     pub fn for_sample(seed: u64, x: u32, y: u32, index: u32) -> Self {
         let h = mix64(seed ^ 0x6a09_e667_f3bc_c909);
+        let pixel = mix64(h ^ (u64::from(x) | (u64::from(y) << 32)));
+        let replicate = u64::from(index & 1).wrapping_mul(0xbb67_ae85_84ca_a73b);
         Self {
-            pixel: mix64(h ^ (u64::from(x) | (u64::from(y) << 32))),
-            index,
+            pixel: mix64(pixel ^ replicate),
+            index_reversed: (index >> 1).reverse_bits(),
             depth: 0,
         }
     }
@@ -139,21 +152,24 @@ impl PathSampler for SobolSample {
         self.depth = depth;
     }
 
+    // Both draw `owen_scramble(sobol_d(shuffle(index)))` with the reversals that cancel
+    // taken out: van der Corput reversed is the index itself, and the shuffle starts from
+    // the reversed index kept in `index_reversed`.
     #[inline]
     fn get_1d(&mut self, dim: Dim) -> f32 {
         let h = self.dim_hash(dim.index(self.depth));
-        let i = shuffle(self.index, h as u32);
-        unit(owen_scramble(i.reverse_bits(), (h >> 32) as u32))
+        let i = laine_karras(self.index_reversed, h as u32).reverse_bits();
+        unit(laine_karras(i, (h >> 32) as u32).reverse_bits())
     }
 
     #[inline]
     fn get_2d(&mut self, dim: Dim) -> Vec2 {
         let h = self.dim_hash(dim.index(self.depth));
-        let i = shuffle(self.index, h as u32);
+        let i = laine_karras(self.index_reversed, h as u32).reverse_bits();
         let sy = mix64(h) as u32;
         Vec2::new(
-            unit(owen_scramble(i.reverse_bits(), (h >> 32) as u32)),
-            unit(owen_scramble(sobol_dim1(i), sy)),
+            unit(laine_karras(i, (h >> 32) as u32).reverse_bits()),
+            unit(laine_karras(sobol_dim1_reversed(i), sy).reverse_bits()),
         )
     }
 }
@@ -181,7 +197,7 @@ fn laine_karras(mut x: u32, seed: u32) -> u32 {
 /// Owen scrambling of a fraction in 32-bit fixed point (bit 31 = 1/2), Burley 2020 §3:
 /// each digit is flipped by a hash of the digits above it, so every elementary interval
 /// of a (t, m, s)-net maps onto one of the same size.
-#[inline(always)]
+#[cfg(test)]
 fn owen_scramble(v: u32, seed: u32) -> u32 {
     laine_karras(v.reverse_bits(), seed).reverse_bits()
 }
@@ -191,16 +207,22 @@ fn owen_scramble(v: u32, seed: u32) -> u32 {
 /// the bits above it. Indices 0..2^m then map onto one aligned block of 2^m Sobol points,
 /// for every m: each power-of-two prefix of a pixel's samples stays a (0, m, 2)-net,
 /// with no bound on the count known in advance.
-#[inline(always)]
+#[cfg(test)]
 fn shuffle(index: u32, seed: u32) -> u32 {
     owen_scramble(index, seed)
 }
 
 /// Sobol's second dimension (primitive polynomial x + 1; its generator matrix is
-/// Pascal's triangle mod 2): the XOR of the direction numbers of the index's set bits,
-/// looked up a byte at a time.
-#[inline(always)]
+/// Pascal's triangle mod 2): the XOR of the direction numbers of the index's set bits.
+#[cfg(test)]
 fn sobol_dim1(i: u32) -> u32 {
+    sobol_dim1_reversed(i).reverse_bits()
+}
+
+/// [`sobol_dim1`] with its bits reversed (what Owen scrambling works on), looked up a
+/// byte of the index at a time.
+#[inline(always)]
+fn sobol_dim1_reversed(i: u32) -> u32 {
     let t = &SOBOL_DIM1_BYTES;
     t[0][(i & 0xff) as usize]
         ^ t[1][((i >> 8) & 0xff) as usize]
@@ -221,7 +243,8 @@ const fn sobol_dim1_directions() -> [u32; 32] {
     v
 }
 
-/// `SOBOL_DIM1_BYTES[b][n]`: the XOR of the direction numbers of byte `b`'s set bits `n`.
+/// `SOBOL_DIM1_BYTES[b][n]`: the XOR of the direction numbers of byte `b`'s set bits `n`,
+/// bit-reversed.
 const SOBOL_DIM1_BYTES: [[u32; 256]; 4] = {
     let v = sobol_dim1_directions();
     let mut t = [[0u32; 256]; 4];
@@ -237,7 +260,7 @@ const SOBOL_DIM1_BYTES: [[u32; 256]; 4] = {
                 }
                 j += 1;
             }
-            t[b][n] = x;
+            t[b][n] = x.reverse_bits();
             n += 1;
         }
         b += 1;
@@ -270,10 +293,16 @@ mod tests {
         })
     }
 
-    fn scrambled(seed: u64, x: u32, y: u32, n: u32, dim: Dim, depth: u32) -> Vec<(f64, f64)> {
+    /// The first `n` points of replicate `r` (the pixel's samples r, r + 2, r + 4, …).
+    fn scrambled(
+        (seed, x, y, r): (u64, u32, u32, u32),
+        n: u32,
+        dim: Dim,
+        depth: u32,
+    ) -> Vec<(f64, f64)> {
         (0..n)
             .map(|i| {
-                let mut s = SobolSample::for_sample(seed, x, y, i);
+                let mut s = SobolSample::for_sample(seed, x, y, 2 * i + r);
                 s.start_bounce(depth);
                 let p = s.get_2d(dim);
                 (f64::from(p.x), f64::from(p.y))
@@ -295,6 +324,23 @@ mod tests {
         ];
         for (i, w) in want.iter().enumerate() {
             assert_eq!(sobol(i as u32), *w, "point {i}");
+        }
+    }
+
+    #[test]
+    fn the_drawn_values_are_the_scrambled_shuffled_sobol_points() {
+        for index in [0, 1, 2, 77, 1 << 20, u32::MAX] {
+            let mut s = SobolSample::for_sample(5, 6, 7, index);
+            s.start_bounce(1);
+            let h = s.dim_hash(Dim::Bsdf.index(1));
+            let i = shuffle(index >> 1, h as u32);
+            let x = owen_scramble(i.reverse_bits(), (h >> 32) as u32);
+            let y = owen_scramble(sobol_dim1(i), mix64(h) as u32);
+            assert_eq!(s.get_2d(Dim::Bsdf), Vec2::new(unit(x), unit(y)));
+            let h = s.dim_hash(Dim::Lobe.index(1));
+            let i = shuffle(index >> 1, h as u32);
+            let v = owen_scramble(i.reverse_bits(), (h >> 32) as u32);
+            assert_eq!(s.get_1d(Dim::Lobe), unit(v));
         }
     }
 
@@ -337,11 +383,15 @@ mod tests {
 
     #[test]
     fn scrambled_prefixes_are_nets_in_every_slot() {
-        for (seed, x, y) in [(1, 0, 0), (7, 33, 2), (u64::MAX, u32::MAX, u32::MAX)] {
+        for key in [
+            (1, 0, 0, 0),
+            (7, 33, 2, 1),
+            (u64::MAX, u32::MAX, u32::MAX, 1),
+        ] {
             for (dim, depth) in [(Dim::Camera, 0), (Dim::LightPoint, 0), (Dim::Bsdf, 3)] {
                 for m in 0..=10 {
-                    let pts = scrambled(seed, x, y, 1 << m, dim, depth);
-                    assert!(is_net(&pts), "seed {seed} ({x},{y}) {dim:?}@{depth} 2^{m}");
+                    let pts = scrambled(key, 1 << m, dim, depth);
+                    assert!(is_net(&pts), "{key:?} {dim:?}@{depth} 2^{m}");
                 }
             }
         }
@@ -352,7 +402,7 @@ mod tests {
         for m in 0..=12u32 {
             let mut seen = vec![false; 1 << m];
             for i in 0..1u32 << m {
-                let mut s = SobolSample::for_sample(3, 5, 8, i);
+                let mut s = SobolSample::for_sample(3, 5, 8, 2 * i + 1);
                 s.start_bounce(2);
                 let v = s.get_1d(Dim::Roulette);
                 let cell = (f64::from(v) * f64::from(1u32 << m)) as usize;
@@ -408,6 +458,19 @@ mod tests {
         let _ = (b.get_1d(Dim::LightSelect), b.get_2d(Dim::LightPoint));
         assert_eq!(b.get_2d(Dim::Bsdf), first);
         assert_eq!(a.get_2d(Dim::Bsdf), first);
+    }
+
+    #[test]
+    fn the_even_and_odd_samples_are_two_independent_replicates() {
+        let even = scrambled((4, 9, 9, 0), 64, Dim::Bsdf, 1);
+        let odd = scrambled((4, 9, 9, 1), 64, Dim::Bsdf, 1);
+        assert!(is_net(&even) && is_net(&odd));
+        // Independently scrambled: the union of the two nets is not one net of 128.
+        let mut both = even.clone();
+        both.extend(&odd);
+        assert!(!is_net(&both));
+        let xs = |p: &[(f64, f64)]| p.iter().map(|q| q.0).collect::<Vec<_>>();
+        assert!(correlation(&xs(&even), &xs(&odd)).abs() < 0.4);
     }
 
     #[test]

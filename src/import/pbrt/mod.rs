@@ -113,8 +113,9 @@ struct Importer<'a> {
     camera: Option<(DMat4, f64)>,
     size: (u64, u64),
     spp: u64,
-    /// `Sampler "independent"` keeps plain Monte Carlo; pbrt's other samplers are all
-    /// stratified or low-discrepancy, which Glimpse's Sobol sampler stands for.
+    /// `Sampler "independent"` keeps plain Monte Carlo; pbrt's other samplers (and its
+    /// default, zsobol) are all stratified or low-discrepancy, which Glimpse's Sobol
+    /// sampler stands for.
     sampler: SamplerKind,
     max_depth: u64,
     world: bool,
@@ -157,7 +158,7 @@ pub fn import(
         camera: None,
         size: (1280, 720),
         spp: 16,
-        sampler: SamplerKind::default(),
+        sampler: SamplerKind::Sobol,
         max_depth: 5,
         world: false,
         prims: Vec::new(),

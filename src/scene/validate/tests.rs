@@ -897,9 +897,12 @@ fn problem_lists_are_capped() {
 }
 
 #[test]
-fn render_sampler_is_sobol_unless_independent_is_asked_for() {
+fn render_sampler_is_independent_unless_sobol_is_asked_for() {
     use crate::tracer::sampler::SamplerKind;
-    assert_eq!(parse(&base()).unwrap().render.sampler, SamplerKind::Sobol);
+    assert_eq!(
+        parse(&base()).unwrap().render.sampler,
+        SamplerKind::Independent
+    );
     for (name, kind) in [
         ("sobol", SamplerKind::Sobol),
         ("independent", SamplerKind::Independent),
