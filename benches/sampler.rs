@@ -233,7 +233,8 @@ fn verdict(bundled: &[SceneErrors], corpus_rows: &[SceneErrors], spp: &[u32]) {
         } else {
             median(corpus_rows.iter().map(|e| ratio(e, k)).collect())
         };
-        let met = bundled_max <= 0.8 && !(corpus_median > 0.8) && worst <= 1.02;
+        let met =
+            bundled_max <= 0.8 && (corpus_median.is_nan() || corpus_median <= 0.8) && worst <= 1.02;
         ok &= met;
         println!(
             "{n:>3} spp: bundled worst ×{bundled_max:.3}, corpus median ×{corpus_median:.3}, \

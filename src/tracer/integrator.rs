@@ -76,7 +76,6 @@ impl PathTracer {
         let lights = &self.lights;
         let mut depth = 0u32;
         loop {
-            rng.start_bounce(depth);
             *rays += 1;
             // The next vertex (the camera ray goes through the screen-tile lists,
             // primary.rs: same hit as the BVH's).

@@ -18,7 +18,9 @@
 //!
 //! Dimensions follow a fixed layout ([`Dim`]): the camera's 2-D pair, then per bounce the
 //! same five slots whether or not a bounce draws them, so a dimension never depends on
-//! the path's history (what pbrt's samplers assume of their callers).
+//! the path's history (what pbrt's samplers assume of their callers). A bounce draws its
+//! slots in [`Dim`]'s order and always its BSDF sample, so a slot at or before the last
+//! one drawn begins the next bounce: the sampler counts bounces itself.
 
 use super::rng::{mix64, Rng};
 use glam::Vec2;
@@ -67,27 +69,33 @@ impl Dim {
     /// Slots per bounce.
     const PER_BOUNCE: u32 = 5;
 
+    /// The slot's place within a bounce (the camera's: none).
+    #[inline(always)]
+    fn slot(self) -> Option<u32> {
+        match self {
+            Dim::Camera => None,
+            Dim::LightSelect => Some(0),
+            Dim::LightPoint => Some(1),
+            Dim::Bsdf => Some(2),
+            Dim::Lobe => Some(3),
+            Dim::Roulette => Some(4),
+        }
+    }
+
     /// The dimension index of this slot at bounce `depth` (the camera is dimension 0).
     #[inline(always)]
     fn index(self, depth: u32) -> u32 {
-        let slot = match self {
-            Dim::Camera => return 0,
-            Dim::LightSelect => 0,
-            Dim::LightPoint => 1,
-            Dim::Bsdf => 2,
-            Dim::Lobe => 3,
-            Dim::Roulette => 4,
-        };
-        1u32.wrapping_add(depth.wrapping_mul(Self::PER_BOUNCE))
-            .wrapping_add(slot)
+        match self.slot() {
+            None => 0,
+            Some(slot) => 1u32
+                .wrapping_add(depth.wrapping_mul(Self::PER_BOUNCE))
+                .wrapping_add(slot),
+        }
     }
 }
 
-/// The numbers of one path.
+/// The numbers of one path, drawn in the order the path uses them.
 pub trait PathSampler {
-    /// The path's vertex `depth` (0 = the camera ray's hit) begins: later draws take that
-    /// bounce's slots.
-    fn start_bounce(&mut self, depth: u32);
     /// A value in [0, 1) for `dim`.
     fn get_1d(&mut self, dim: Dim) -> f32;
     /// A point in [0, 1)² for `dim`.
@@ -97,9 +105,6 @@ pub trait PathSampler {
 /// The independent sampler draws its stream in order: slots do not matter, and its
 /// pictures are exactly those of the per-path PCG32 streams.
 impl PathSampler for Rng {
-    #[inline(always)]
-    fn start_bounce(&mut self, _depth: u32) {}
-
     #[inline(always)]
     fn get_1d(&mut self, _dim: Dim) -> f32 {
         self.next_f32()
@@ -120,7 +125,10 @@ pub struct SobolSample {
     /// bits reversed: the form the shuffle scrambles (kept once per path instead of
     /// reversed again for every dimension).
     index_reversed: u32,
+    /// The bounce being drawn for (0 = the camera ray's hit), and the slot drawn last
+    /// there (`None` before the first).
     depth: u32,
+    last_slot: Option<u32>,
 }
 
 impl SobolSample {
@@ -136,7 +144,28 @@ impl SobolSample {
             pixel: mix64(pixel ^ replicate),
             index_reversed: (index >> 1).reverse_bits(),
             depth: 0,
+            last_slot: None,
         }
+    }
+
+    /// This sample with its next draws taken from bounce `depth`'s slots.
+    #[cfg(test)]
+    fn at_bounce(mut self, depth: u32) -> Self {
+        self.depth = depth;
+        self
+    }
+
+    /// The dimension `dim` takes now, counting a bounce each time a slot comes at or
+    /// before the last one drawn.
+    #[inline(always)]
+    fn dimension(&mut self, dim: Dim) -> u32 {
+        if let Some(slot) = dim.slot() {
+            if self.last_slot.is_some_and(|last| slot <= last) {
+                self.depth = self.depth.wrapping_add(1);
+            }
+            self.last_slot = Some(slot);
+        }
+        dim.index(self.depth)
     }
 
     /// The hash of dimension `d`: two independent 32-bit seeds per call.
@@ -147,24 +176,21 @@ impl SobolSample {
 }
 
 impl PathSampler for SobolSample {
-    #[inline(always)]
-    fn start_bounce(&mut self, depth: u32) {
-        self.depth = depth;
-    }
-
     // Both draw `owen_scramble(sobol_d(shuffle(index)))` with the reversals that cancel
     // taken out: van der Corput reversed is the index itself, and the shuffle starts from
     // the reversed index kept in `index_reversed`.
     #[inline]
     fn get_1d(&mut self, dim: Dim) -> f32 {
-        let h = self.dim_hash(dim.index(self.depth));
+        let d = self.dimension(dim);
+        let h = self.dim_hash(d);
         let i = laine_karras(self.index_reversed, h as u32).reverse_bits();
         unit(laine_karras(i, (h >> 32) as u32).reverse_bits())
     }
 
     #[inline]
     fn get_2d(&mut self, dim: Dim) -> Vec2 {
-        let h = self.dim_hash(dim.index(self.depth));
+        let d = self.dimension(dim);
+        let h = self.dim_hash(d);
         let i = laine_karras(self.index_reversed, h as u32).reverse_bits();
         let sy = mix64(h) as u32;
         Vec2::new(
@@ -302,8 +328,7 @@ mod tests {
     ) -> Vec<(f64, f64)> {
         (0..n)
             .map(|i| {
-                let mut s = SobolSample::for_sample(seed, x, y, 2 * i + r);
-                s.start_bounce(depth);
+                let mut s = SobolSample::for_sample(seed, x, y, 2 * i + r).at_bounce(depth);
                 let p = s.get_2d(dim);
                 (f64::from(p.x), f64::from(p.y))
             })
@@ -330,8 +355,7 @@ mod tests {
     #[test]
     fn the_drawn_values_are_the_scrambled_shuffled_sobol_points() {
         for index in [0, 1, 2, 77, 1 << 20, u32::MAX] {
-            let mut s = SobolSample::for_sample(5, 6, 7, index);
-            s.start_bounce(1);
+            let mut s = SobolSample::for_sample(5, 6, 7, index).at_bounce(1);
             let h = s.dim_hash(Dim::Bsdf.index(1));
             let i = shuffle(index >> 1, h as u32);
             let x = owen_scramble(i.reverse_bits(), (h >> 32) as u32);
@@ -402,8 +426,7 @@ mod tests {
         for m in 0..=12u32 {
             let mut seen = vec![false; 1 << m];
             for i in 0..1u32 << m {
-                let mut s = SobolSample::for_sample(3, 5, 8, 2 * i + 1);
-                s.start_bounce(2);
+                let mut s = SobolSample::for_sample(3, 5, 8, 2 * i + 1).at_bounce(2);
                 let v = s.get_1d(Dim::Roulette);
                 let cell = (f64::from(v) * f64::from(1u32 << m)) as usize;
                 assert!(!std::mem::replace(&mut seen[cell], true), "2^{m}: {i}");
@@ -430,9 +453,8 @@ mod tests {
     fn values_stay_in_the_unit_interval_at_the_extremes() {
         for index in [0, 1, u32::MAX - 1, u32::MAX] {
             for (x, y) in [(0, 0), (u32::MAX, u32::MAX), (u32::MAX, 0)] {
-                let mut s = SobolSample::for_sample(u64::MAX, x, y, index);
                 for depth in [0, 1, 63, u32::MAX] {
-                    s.start_bounce(depth);
+                    let mut s = SobolSample::for_sample(u64::MAX, x, y, index).at_bounce(depth);
                     for d in [Dim::LightSelect, Dim::Lobe, Dim::Roulette] {
                         assert!((0.0..1.0).contains(&s.get_1d(d)));
                     }
@@ -449,15 +471,36 @@ mod tests {
 
     #[test]
     fn a_value_is_a_pure_function_of_its_inputs_not_of_the_draw_order() {
-        let mut a = SobolSample::for_sample(9, 4, 5, 77);
-        let mut b = SobolSample::for_sample(9, 4, 5, 77);
-        a.start_bounce(2);
+        let mut a = SobolSample::for_sample(9, 4, 5, 77).at_bounce(2);
+        let mut b = SobolSample::for_sample(9, 4, 5, 77).at_bounce(2);
         let first = a.get_2d(Dim::Bsdf);
         // b draws other slots first (a vertex with next-event estimation).
-        b.start_bounce(2);
         let _ = (b.get_1d(Dim::LightSelect), b.get_2d(Dim::LightPoint));
         assert_eq!(b.get_2d(Dim::Bsdf), first);
-        assert_eq!(a.get_2d(Dim::Bsdf), first);
+        // A second BSDF sample belongs to the next bounce.
+        assert_ne!(a.get_2d(Dim::Bsdf), first);
+    }
+
+    #[test]
+    fn bounces_are_counted_from_the_order_of_the_slots() {
+        // A path: camera; bounce 0 with next-event estimation; bounce 1 on a mirror (no
+        // light sample) with roulette; bounce 2 with next-event estimation.
+        let path = [
+            (Dim::Camera, 0),
+            (Dim::LightSelect, 0),
+            (Dim::LightPoint, 0),
+            (Dim::Bsdf, 0),
+            (Dim::Lobe, 0),
+            (Dim::Bsdf, 1),
+            (Dim::Lobe, 1),
+            (Dim::Roulette, 1),
+            (Dim::LightSelect, 2),
+            (Dim::Bsdf, 2),
+        ];
+        let mut s = SobolSample::for_sample(1, 2, 3, 4);
+        for (dim, depth) in path {
+            assert_eq!(s.dimension(dim), dim.index(depth), "{dim:?}@{depth}");
+        }
     }
 
     #[test]
@@ -505,8 +548,7 @@ mod tests {
         let series = |seed: u64, x: u32, dim: Dim, depth: u32| -> Vec<f64> {
             (0..4096)
                 .map(|i| {
-                    let mut s = SobolSample::for_sample(seed, x, 0, i);
-                    s.start_bounce(depth);
+                    let mut s = SobolSample::for_sample(seed, x, 0, i).at_bounce(depth);
                     f64::from(s.get_1d(dim))
                 })
                 .collect()
@@ -544,7 +586,6 @@ mod tests {
     fn the_independent_sampler_is_the_pcg32_stream_in_order() {
         let mut r = Rng::for_sample(3, 1, 2, 4);
         let mut s = Rng::for_sample(3, 1, 2, 4);
-        s.start_bounce(5);
         assert_eq!(s.get_2d(Dim::Bsdf), r.next_2d());
         assert_eq!(s.get_1d(Dim::Camera), r.next_f32());
     }
