@@ -395,7 +395,7 @@ pub struct Loaded {
 /// samples per pixel stay the scene's (times [`BenchConfig::spp_factor`]): fewer would make
 /// the reference itself noisy, and a noisy reference is a different study (every method is
 /// then judged mostly on noise).
-fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
+pub fn load(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
     let imported = crate::import::import_path(path, &Limits::command_line())
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let json = match &imported {

@@ -468,6 +468,8 @@ pub struct RenderDoc {
     pub samples_per_pixel: u64,
     pub max_bounces: u64,
     pub seed: u64,
+    /// `"independent"` (the default) or `"sobol"`.
+    pub sampler: crate::tracer::sampler::SamplerKind,
     /// `null`/absent: on in adaptive mode, off in the others.
     pub denoise: Option<bool>,
 }
@@ -479,6 +481,7 @@ impl Default for RenderDoc {
             samples_per_pixel: 16,
             max_bounces: 5,
             seed: 1,
+            sampler: crate::tracer::sampler::SamplerKind::Independent,
             denoise: None,
         }
     }

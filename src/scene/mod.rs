@@ -322,6 +322,8 @@ pub struct RenderSettings {
     pub samples_per_pixel: u32,
     pub max_bounces: u32,
     pub seed: u64,
+    /// Which numbers the paths draw (tracer/sampler.rs).
+    pub sampler: crate::tracer::sampler::SamplerKind,
     /// Whether the final picture (and, in adaptive mode, every pass's) goes through the
     /// denoiser: `render.denoise`; `None` = on in adaptive mode only (decided with the
     /// mode a render actually runs, which the command line and the API can override).

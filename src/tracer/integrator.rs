@@ -8,7 +8,7 @@
 
 use super::bvh::NONE;
 use super::material::{Bsdf, BsdfSample};
-use super::rng::Rng;
+use super::sampler::{Dim, PathSampler};
 use super::sampling::{offset_ray_origin, power_heuristic, Frame};
 use super::PathTracer;
 use glam::Vec3;
@@ -25,7 +25,13 @@ impl PathTracer {
     /// One path through pixel (x, y); its random numbers come from `rng` only. Adds the
     /// rays it casts (camera, bounce and shadow rays) to `rays`: what a path costs.
     #[inline]
-    pub(crate) fn trace_path(&self, x: u32, y: u32, rng: &mut Rng, rays: &mut u32) -> Vec3 {
+    pub(crate) fn trace_path(
+        &self,
+        x: u32,
+        y: u32,
+        rng: &mut impl PathSampler,
+        rays: &mut u32,
+    ) -> Vec3 {
         self.trace_path_impl::<false>(x, y, rng, &mut None, rays)
     }
 
@@ -38,7 +44,7 @@ impl PathTracer {
         &self,
         x: u32,
         y: u32,
-        rng: &mut Rng,
+        rng: &mut impl PathSampler,
         albedo: &mut Option<Vec3>,
         rays: &mut u32,
     ) -> Vec3 {
@@ -51,11 +57,11 @@ impl PathTracer {
         &self,
         x: u32,
         y: u32,
-        rng: &mut Rng,
+        rng: &mut impl PathSampler,
         albedo: &mut Option<Vec3>,
         rays: &mut u32,
     ) -> Vec3 {
-        let mut dir = self.camera.direction(x, y, rng.next_2d());
+        let mut dir = self.camera.direction(x, y, rng.get_2d(Dim::Camera));
         let mut o = self.camera.origin;
         let mut throughput = Vec3::ONE;
         let mut l = Vec3::ZERO;
@@ -188,11 +194,11 @@ impl PathTracer {
         at: &Shading,
         bsdf: &Bsdf,
         throughput: Vec3,
-        rng: &mut Rng,
+        rng: &mut impl PathSampler,
         rays: &mut u32,
     ) -> Option<Vec3> {
-        let u_sel = rng.next_f32();
-        let u_l = rng.next_2d();
+        let u_sel = rng.get_1d(Dim::LightSelect);
+        let u_l = rng.get_2d(Dim::LightPoint);
         let ls = self.lights.sample(at.p, u_sel, u_l)?;
         if !(ls.wi.dot(at.ng) > 0.0) {
             return None;
@@ -313,9 +319,13 @@ impl Shading {
 /// surface, or one below the flipped geometric surface of a two-sided shading normal
 /// (such a reflected ray would leak light through it).
 #[inline(always)]
-fn scatter(at: &Shading, bsdf: &Bsdf, rng: &mut Rng) -> Option<(BsdfSample, Vec3, f32)> {
-    let u = rng.next_2d();
-    let uc = rng.next_f32();
+fn scatter(
+    at: &Shading,
+    bsdf: &Bsdf,
+    rng: &mut impl PathSampler,
+) -> Option<(BsdfSample, Vec3, f32)> {
+    let u = rng.get_2d(Dim::Bsdf);
+    let uc = rng.get_1d(Dim::Lobe);
     let bs = bsdf.sample(at.wo, u, uc)?;
     let wi = at.frame.to_world(bs.wi).normalize();
     let side = wi.dot(at.ng_prim);
@@ -332,9 +342,9 @@ fn scatter(at: &Shading, bsdf: &Bsdf, rng: &mut Rng) -> Option<(BsdfSample, Vec3
 /// q = min(max throughput component, 0.95) and its throughput is divided by q. Returns
 /// whether it survives; a NaN or zero throughput ends it.
 #[inline(always)]
-fn russian_roulette(throughput: &mut Vec3, rng: &mut Rng) -> bool {
+fn russian_roulette(throughput: &mut Vec3, rng: &mut impl PathSampler) -> bool {
     let q = throughput.max_element().min(0.95);
-    if !(q > 0.0) || rng.next_f32() >= q {
+    if !(q > 0.0) || rng.get_1d(Dim::Roulette) >= q {
         return false;
     }
     *throughput /= q;

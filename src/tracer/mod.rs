@@ -21,6 +21,7 @@ pub mod light;
 pub mod material;
 pub mod primary;
 pub mod rng;
+pub mod sampler;
 pub mod sampling;
 pub mod texture;
 
@@ -619,6 +620,8 @@ pub struct PathTracer {
     pub(crate) max_bounces: u32,
     samples_per_pixel: u32,
     seed: u64,
+    /// Which numbers the paths draw (`render.sampler`).
+    sampler: sampler::SamplerKind,
     pub(crate) features: Features,
     /// Samples dropped because they were NaN or infinite (diagnostics only).
     dropped: AtomicU64,
@@ -658,6 +661,7 @@ impl PathTracer {
             max_bounces: scene.render.max_bounces,
             samples_per_pixel: scene.render.samples_per_pixel,
             seed: scene.render.seed,
+            sampler: scene.render.sampler,
             features,
             dropped: AtomicU64::new(0),
         })
@@ -705,8 +709,9 @@ impl PathTracer {
     /// same ray generation and first hit as [`PixelOracle::radiance`]'s paths.
     #[must_use]
     pub fn primary_ray_hits(&self, p: PixelCoord, sample: u32, seed: u64) -> bool {
-        let mut rng = rng::Rng::for_sample(seed, p.x, p.y, sample);
-        let d = self.camera.direction(p.x, p.y, rng.next_2d());
+        let d = self
+            .camera
+            .direction(p.x, p.y, self.camera_jitter(p, sample, seed));
         self.camera_hit(p.x, p.y, d).is_some()
     }
 
@@ -714,11 +719,27 @@ impl PathTracer {
     /// camera-ray paths (benches/tracer.rs, tests).
     #[must_use]
     pub fn primary_ray_hits_bvh(&self, p: PixelCoord, sample: u32, seed: u64) -> bool {
-        let mut rng = rng::Rng::for_sample(seed, p.x, p.y, sample);
-        let d = self.camera.direction(p.x, p.y, rng.next_2d());
+        let d = self
+            .camera
+            .direction(p.x, p.y, self.camera_jitter(p, sample, seed));
         self.geo
             .intersect(self.camera.origin, d, f32::INFINITY, bvh::NONE)
             .is_some()
+    }
+
+    /// The position inside pixel `p` of its sample `sample` under `seed`: the first 2-D
+    /// value of the path's numbers, as the paths draw it.
+    #[must_use]
+    pub fn camera_jitter(&self, p: PixelCoord, sample: u32, seed: u64) -> glam::Vec2 {
+        use sampler::{Dim, PathSampler};
+        match self.sampler {
+            sampler::SamplerKind::Sobol => {
+                sampler::SobolSample::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
+            }
+            sampler::SamplerKind::Independent => {
+                rng::Rng::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
+            }
+        }
     }
 }
 
@@ -769,14 +790,38 @@ impl PathTracer {
         p: PixelCoord,
         count: u32,
         seed: u64,
+        acc: SampleSum,
+        albedo: &mut Option<Vec3>,
+    ) -> SampleSum {
+        match self.sampler {
+            sampler::SamplerKind::Sobol => {
+                self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
+                    sampler::SobolSample::for_sample(seed, p.x, p.y, i)
+                })
+            }
+            sampler::SamplerKind::Independent => {
+                self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
+                    rng::Rng::for_sample(seed, p.x, p.y, i)
+                })
+            }
+        }
+    }
+
+    /// [`PathTracer::add_paths`] with path `i`'s numbers drawn by `sampler_of(i)`.
+    #[inline(always)]
+    fn add_paths_of<const ALBEDO: bool, S: sampler::PathSampler>(
+        &self,
+        p: PixelCoord,
+        count: u32,
         mut acc: SampleSum,
         albedo: &mut Option<Vec3>,
+        sampler_of: impl Fn(u32) -> S,
     ) -> SampleSum {
         let mut rays = 0u32;
         let kept_before = acc.kept;
         let end = acc.next.saturating_add(count);
         for i in acc.next..end {
-            let mut rng = rng::Rng::for_sample(seed, p.x, p.y, i);
+            let mut rng = sampler_of(i);
             let (v, a) = if ALBEDO {
                 let mut a = None;
                 (
@@ -1118,7 +1163,7 @@ mod tests {
             let (v, a) = t.radiance_albedo_with(p, 5, 9);
             assert_eq!(v.to_array(), t.radiance_with(p, 5, 9).to_array());
             let taps: Option<Vec<Vec3>> = (0..5)
-                .map(|k| t.albedo_at(p, rng::Rng::for_sample(9, p.x, p.y, k).next_2d()))
+                .map(|k| t.albedo_at(p, t.camera_jitter(p, k, 9)))
                 .collect();
             let want = taps.map(|v| v.iter().fold(Vec3::ZERO, |s, &a| s + a) / 5.0);
             assert_eq!(a, want, "{p:?}");

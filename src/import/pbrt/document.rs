@@ -29,6 +29,7 @@ impl Importer<'_> {
             lights: self.lights,
             render: RenderDoc {
                 samples_per_pixel: self.spp,
+                sampler: self.sampler,
                 max_bounces: self.max_depth,
                 ..RenderDoc::default()
             },

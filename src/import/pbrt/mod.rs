@@ -39,6 +39,7 @@ use self::lexer::{Lexer, Pos, Tok};
 use self::params::{Cap, Params};
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{ImageTextureDoc, LightDoc, MaterialDoc};
+use crate::tracer::sampler::SamplerKind;
 
 /// The most values one parameter may hold outside a mesh's own lists (a camera, a light, a
 /// material, a spectrum's wavelength/value pairs need a few dozen).
@@ -112,6 +113,10 @@ struct Importer<'a> {
     camera: Option<(DMat4, f64)>,
     size: (u64, u64),
     spp: u64,
+    /// `Sampler "independent"` keeps plain Monte Carlo; pbrt's other samplers (and its
+    /// default, zsobol) are all stratified or low-discrepancy, which Glimpse's Sobol
+    /// sampler stands for.
+    sampler: SamplerKind,
     max_depth: u64,
     world: bool,
     prims: Vec<Prim>,
@@ -153,6 +158,7 @@ pub fn import(
         camera: None,
         size: (1280, 720),
         spp: 16,
+        sampler: SamplerKind::Sobol,
         max_depth: 5,
         world: false,
         prims: Vec::new(),
@@ -551,5 +557,23 @@ mod tests {
         let e = run("WorldBegin\nInclude \"geo/a.pbrt\"\n", &files, &limits()).unwrap_err();
         assert_eq!(e.location, "geo/a.pbrt:1:1");
         assert!(e.message.contains("\"b.pbrt\" is not in the bundle"), "{e}");
+    }
+
+    #[test]
+    fn pbrts_independent_sampler_stays_independent_and_the_others_become_sobol() {
+        let sampler_of = |directive: &str| {
+            let text = format!("{directive}{}", mesh("0 1 2", "0 0 0 1 0 0 0 1 0"));
+            run(&text, &[], &limits()).unwrap().doc.render
+        };
+        let r = sampler_of("Sampler \"independent\" \"integer pixelsamples\" [8]\n");
+        assert_eq!(
+            (r.sampler, r.samples_per_pixel),
+            (SamplerKind::Independent, 8)
+        );
+        for other in ["zsobol", "halton", "stratified", "paddedsobol", "pmj02bn"] {
+            let r = sampler_of(&format!("Sampler \"{other}\"\n"));
+            assert_eq!(r.sampler, SamplerKind::Sobol, "{other}");
+        }
+        assert_eq!(sampler_of("").sampler, SamplerKind::Sobol);
     }
 }

@@ -6,6 +6,7 @@
 use super::lexer::{Lexer, Pos, Tok};
 use super::params::{self, Params};
 use super::{list_cap, ImportError, Importer, MAX_LIST};
+use crate::tracer::sampler::SamplerKind;
 
 impl Importer<'_> {
     /// `Camera`: a perspective camera's field of view, at the current transform
@@ -53,7 +54,7 @@ impl Importer<'_> {
         let p = params::parse(lx, &list_cap)?;
         match dir {
             "Film" => self.film(&p, pos),
-            "Sampler" => self.sampler(&p, pos),
+            "Sampler" => self.sampler(&ty, &p, pos),
             "Integrator" => self.integrator(&ty, &p, pos),
             // `PixelFilter`
             _ => {
@@ -78,12 +79,17 @@ impl Importer<'_> {
         Ok(())
     }
 
-    fn sampler(&mut self, p: &Params, pos: &Pos) -> Result<(), ImportError> {
+    fn sampler(&mut self, ty: &str, p: &Params, pos: &Pos) -> Result<(), ImportError> {
         let n = p.float("pixelsamples", 16.0)?;
         if n < 1.0 {
             return Err(pos.error(format!("pixelsamples must be ≥ 1, got {n}")));
         }
         self.spp = n as u64;
+        self.sampler = if ty == "independent" {
+            SamplerKind::Independent
+        } else {
+            SamplerKind::Sobol
+        };
         Ok(())
     }
 

@@ -11,6 +11,7 @@ pub(super) fn check_render(cx: &mut Ctx, r: &RenderDoc) -> RenderSettings {
         samples_per_pixel: u32::try_from(r.samples_per_pixel).unwrap_or(u32::MAX),
         max_bounces: u32::try_from(r.max_bounces).unwrap_or(u32::MAX),
         seed: r.seed,
+        sampler: r.sampler,
         denoise: r.denoise,
     }
 }

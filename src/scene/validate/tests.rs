@@ -262,6 +262,14 @@ fn shape_errors_name_their_path() {
         ),
         (with(|v| v["render"]["mode"] = json!("fast")), "render.mode"),
         (
+            with(|v| v["render"]["sampler"] = json!("halton")),
+            "render.sampler",
+        ),
+        (
+            with(|v| v["render"]["sampler"] = json!(1)),
+            "render.sampler",
+        ),
+        (
             with(|v| {
                 v["objects"][0] =
                     json!({"type":"mesh","positions":[[0,0,0]],"indices":[[0,0,-1]],"material":"m"})
@@ -885,5 +893,27 @@ fn problem_lists_are_capped() {
         e.problems[MAX_LISTED].message.contains("250 more"),
         "{}",
         e.problems[MAX_LISTED].message
+    );
+}
+
+#[test]
+fn render_sampler_is_independent_unless_sobol_is_asked_for() {
+    use crate::tracer::sampler::SamplerKind;
+    assert_eq!(
+        parse(&base()).unwrap().render.sampler,
+        SamplerKind::Independent
+    );
+    for (name, kind) in [
+        ("sobol", SamplerKind::Sobol),
+        ("independent", SamplerKind::Independent),
+    ] {
+        let s = parse(&with(|v| v["render"] = json!({"sampler": name}))).unwrap();
+        assert_eq!(s.render.sampler, kind);
+        assert_eq!(kind.as_str(), name);
+    }
+    let (_, _, msg) = refused(&with(|v| v["render"]["sampler"] = json!("Sobol")).to_string());
+    assert!(
+        msg.contains("independent") && msg.contains("sobol"),
+        "{msg}"
     );
 }
