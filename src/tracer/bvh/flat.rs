@@ -1,10 +1,12 @@
-//! Rays through small scenes: every primitive tested, triangles eight at a time (AVX).
+//! Rays through small scenes: every primitive tested, triangles eight (AVX) or sixteen
+//! (AVX-512) at a time.
 //!
 //! A scene of a few dozen primitives (the Cornell box has 36 triangles) costs the CWBVH
 //! traversal ~900 instructions a ray (callgrind, 128² × 8 spp of scenes/cornell-box.json),
 //! most of it node decoding and stack work. Testing all its triangles in packets of eight
-//! (AVX) costs about half of that; in packets of four (SSE2) it cost as much as the
-//! traversal, so without AVX the BVH is kept. The packets repeat bvh.rs `tri_t` lane by
+//! (AVX) costs about half of that (closest hit 520, occlusion 460); in packets of four
+//! (SSE2) it cost as much as the traversal, so without AVX the BVH is kept. Sixteen lanes
+//! (two packets side by side) took a further 5 % off a whole render's CPU time. The packets repeat bvh.rs `tri_t` lane by
 //! lane, the same IEEE operations in the same order with no FMA (as primary.rs does for
 //! camera rays), so `t`, `u` and `v` are bit-identical to the traversal's. (One ray in
 //! ~10⁵ of the unit test's, from a point within 10⁻⁴ of where two walls meet, is hit
@@ -34,7 +36,9 @@ struct Packet([[f32; 8]; 9]);
 /// All primitives of a small scene: triangles in packets, spheres on their own.
 #[derive(Debug, Default)]
 pub struct Flat {
+    /// With AVX-512, padded to an even count: packets are then tested two at a time.
     packets: Vec<Packet>,
+    avx512: bool,
     /// The primitive index of each packet lane ([`NONE`] in unused lanes).
     lane_prim: Vec<u32>,
     /// Per primitive, its lane (`8 · packet + lane`), or [`NONE`] for a sphere.
@@ -85,6 +89,11 @@ impl Flat {
             f.packets.push(pk);
             f.lane_prim.extend(ids);
         }
+        f.avx512 = has_avx512();
+        if f.avx512 && f.packets.len() % 2 == 1 {
+            f.packets.push(Packet::default());
+            f.lane_prim.extend([NONE; 8]);
+        }
         Some(f)
     }
 
@@ -109,7 +118,13 @@ impl Flat {
     pub fn occluded(&self, r: &BvhRay, skip: u32) -> bool {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: a `Flat` exists only where the CPU has AVX (`build`).
-        let packets = unsafe { avx::any_hit(&self.packets, r, self.skip_lane(skip)) };
+        let packets = unsafe {
+            if self.avx512 {
+                avx512::any_hit(&self.packets, r, self.skip_lane(skip))
+            } else {
+                avx::any_hit(&self.packets, r, self.skip_lane(skip))
+            }
+        };
         #[cfg(not(target_arch = "x86_64"))]
         let packets = false;
         packets
@@ -124,7 +139,13 @@ impl Flat {
     pub fn closest(&self, r: &BvhRay, skip: u32) -> Closest {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: a `Flat` exists only where the CPU has AVX (`build`).
-        let tri = unsafe { avx::closest(&self.packets, r, self.skip_lane(skip)) };
+        let tri = unsafe {
+            if self.avx512 {
+                avx512::closest(&self.packets, r, self.skip_lane(skip))
+            } else {
+                avx::closest(&self.packets, r, self.skip_lane(skip))
+            }
+        };
         #[cfg(not(target_arch = "x86_64"))]
         let tri = TriBest::default();
         let mut best = tri.lane.map_or(NONE, |l| self.lane_prim[l as usize]);
@@ -171,11 +192,163 @@ struct TriBest {
     tie: bool,
 }
 
+/// AVX-512 with the 256-bit inserts of its DQ extension: two packets at a time.
+fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512dq");
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
 fn has_avx() -> bool {
     #[cfg(target_arch = "x86_64")]
     return std::arch::is_x86_feature_detected!("avx");
     #[cfg(not(target_arch = "x86_64"))]
     false
+}
+
+/// [`avx`] on sixteen lanes: packets `2m` and `2m + 1` side by side (lanes `16m..16m+16`).
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{BvhRay, Packet, TriBest, NONE};
+    use std::arch::x86_64::*;
+
+    struct Lanes {
+        o: [__m512; 3],
+        d: [__m512; 3],
+        tmin: __m512,
+        tmax: __m512,
+    }
+
+    #[target_feature(enable = "avx512f")]
+    fn lanes(r: &BvhRay) -> Lanes {
+        let (o, d) = (r.origin, r.direction);
+        let s = _mm512_set1_ps;
+        Lanes {
+            o: [s(o.x), s(o.y), s(o.z)],
+            d: [s(d.x), s(d.y), s(d.z)],
+            tmin: s(r.tmin),
+            tmax: s(r.tmax),
+        }
+    }
+
+    #[target_feature(enable = "avx512f,avx512dq")]
+    pub(super) fn any_hit(packets: &[Packet], r: &BvhRay, skip_lane: u32) -> bool {
+        let l = lanes(r);
+        packets.chunks_exact(2).enumerate().any(|(m, pair)| {
+            let (mask, ..) = hits(&l, &pair[0], &pair[1]);
+            mask & !skip_bit(m, skip_lane) != 0
+        })
+    }
+
+    #[target_feature(enable = "avx512f,avx512dq")]
+    pub(super) fn closest(packets: &[Packet], r: &BvhRay, skip_lane: u32) -> TriBest {
+        let l = lanes(r);
+        let mut best = TriBest {
+            lane: None,
+            t: r.tmax,
+            u: 0.0,
+            v: 0.0,
+            tie: false,
+        };
+        for (m, pair) in packets.chunks_exact(2).enumerate() {
+            let (mask, t, u, v) = hits(&l, &pair[0], &pair[1]);
+            let mut bits = mask & !skip_bit(m, skip_lane);
+            if bits == 0 {
+                continue;
+            }
+            let ts = to_array(t);
+            let (mut tm, mut first, mut count) = (f32::INFINITY, 0usize, 0u32);
+            while bits != 0 {
+                let j = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                if ts[j] < tm {
+                    (tm, first, count) = (ts[j], j, 1);
+                } else if ts[j] == tm {
+                    count += 1;
+                }
+            }
+            if tm < best.t {
+                best = TriBest {
+                    lane: Some((16 * m + first) as u32),
+                    t: tm,
+                    u: to_array(u)[first],
+                    v: to_array(v)[first],
+                    tie: count > 1,
+                };
+            } else if tm == best.t {
+                best.tie = true;
+            }
+        }
+        best
+    }
+
+    #[inline(always)]
+    fn skip_bit(m: usize, skip_lane: u32) -> u32 {
+        if skip_lane != NONE && (skip_lane / 16) as usize == m {
+            1 << (skip_lane % 16)
+        } else {
+            0
+        }
+    }
+
+    #[target_feature(enable = "avx512f")]
+    fn to_array(x: __m512) -> [f32; 16] {
+        let mut a = [0.0f32; 16];
+        // SAFETY: `a` holds sixteen floats.
+        unsafe { _mm512_storeu_ps(a.as_mut_ptr(), x) };
+        a
+    }
+
+    /// `avx::hits` on the sixteen lanes of packets `a` and `b`.
+    #[target_feature(enable = "avx512f,avx512dq")]
+    fn hits(l: &Lanes, a: &Packet, b: &Packet) -> (u32, __m512, __m512, __m512) {
+        let ld = |i: usize| {
+            // SAFETY: each row of a packet holds eight floats, 32-byte aligned.
+            let (lo, hi) = unsafe {
+                (
+                    _mm256_load_ps(a.0[i].as_ptr()),
+                    _mm256_load_ps(b.0[i].as_ptr()),
+                )
+            };
+            _mm512_insertf32x8::<1>(_mm512_castps256_ps512(lo), hi)
+        };
+        let (mul, add, sub) = (_mm512_mul_ps, _mm512_add_ps, _mm512_sub_ps);
+        let dot = |a: [__m512; 3], b: [__m512; 3]| {
+            add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
+        };
+        let cross = |a: [__m512; 3], b: [__m512; 3]| {
+            [
+                sub(mul(a[1], b[2]), mul(a[2], b[1])),
+                sub(mul(a[2], b[0]), mul(a[0], b[2])),
+                sub(mul(a[0], b[1]), mul(a[1], b[0])),
+            ]
+        };
+        let (v0, e1, e2) = (
+            [ld(0), ld(1), ld(2)],
+            [ld(3), ld(4), ld(5)],
+            [ld(6), ld(7), ld(8)],
+        );
+        let pv = cross(l.d, e2);
+        let det = dot(e1, pv);
+        let inv = _mm512_div_ps(_mm512_set1_ps(1.0), det);
+        let tv = [sub(l.o[0], v0[0]), sub(l.o[1], v0[1]), sub(l.o[2], v0[2])];
+        let u = mul(dot(tv, pv), inv);
+        let qv = cross(tv, e1);
+        let v = mul(dot(l.d, qv), inv);
+        let t = mul(dot(e2, qv), inv);
+        let (zero, one) = (_mm512_setzero_ps(), _mm512_set1_ps(1.0));
+        let ok = _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(det, zero)
+            & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(_mm512_abs_ps(det), _mm512_set1_ps(f32::INFINITY))
+            & _mm512_cmp_ps_mask::<_CMP_GE_OQ>(u, zero)
+            & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(u, one)
+            & _mm512_cmp_ps_mask::<_CMP_NLT_UQ>(v, zero)
+            & _mm512_cmp_ps_mask::<_CMP_NGT_UQ>(add(u, v), one)
+            & _mm512_cmp_ps_mask::<_CMP_GT_OQ>(t, l.tmin)
+            & _mm512_cmp_ps_mask::<_CMP_LT_OQ>(t, l.tmax);
+        (u32::from(ok), t, u, v)
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -363,8 +536,18 @@ mod tests {
             radius: 0.25,
             material: 0,
         });
-        let geo = Geometry::build(&scene);
+        let mut geo = Geometry::build(&scene);
         assert!(geo.flat.is_some(), "a small scene is traced by packets");
+        // The AVX-512 build here, and AVX on the same (even-padded) packets.
+        for wide in [true, false] {
+            if let Some(f) = geo.flat.as_mut() {
+                f.avx512 &= wide;
+            }
+            compare_with_traversal(&geo);
+        }
+    }
+
+    fn compare_with_traversal(geo: &Geometry) {
         let mut rand = uniforms(7);
         let (mut hits, mut ties, mut blocked, mut culled) = (0, 0, 0, 0);
         for k in 0..200_000 {
