@@ -145,7 +145,19 @@ impl Mitsuba {
     /// Writes `scene` into `dir` and starts the script on it; waits for its warm-up
     /// render. `None` (with how to install it) when Mitsuba or its LLVM backend is missing.
     fn start(scene: &Scene, dir: &Path) -> Option<Self> {
-        write_scene(scene, dir).expect("the scene written for Mitsuba");
+        let peer = Self::spawn(scene, dir);
+        if peer.is_none() {
+            println!(
+                "Mitsuba 3 llvm_ad_rgb is not available: no comparison. Install it with \
+                 `export DRJIT_LIBLLVM_PATH=$(bash scripts/mitsuba.sh)`, then run again."
+            );
+        }
+        peer
+    }
+
+    /// [`Self::start`] without the message.
+    fn spawn(scene: &Scene, dir: &Path) -> Option<Self> {
+        write_scene(scene, dir).ok()?;
         let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/mitsuba_time.py");
         let mut child = Command::new("python3")
             .arg(script)
@@ -163,10 +175,6 @@ impl Mitsuba {
             _ => {
                 let _ = child.kill();
                 let _ = child.wait();
-                println!(
-                    "Mitsuba 3 llvm_ad_rgb is not available: no comparison. Install it with \
-                     `export DRJIT_LIBLLVM_PATH=$(bash scripts/mitsuba.sh)`, then run again."
-                );
                 None
             }
         }
