@@ -147,7 +147,13 @@ impl Flat {
             }
         };
         #[cfg(not(target_arch = "x86_64"))]
-        let tri = TriBest::default();
+        let tri = TriBest {
+            lane: None,
+            t: r.tmax,
+            u: 0.0,
+            v: 0.0,
+            tie: false,
+        };
         let mut best = tri.lane.map_or(NONE, |l| self.lane_prim[l as usize]);
         let (mut best_t, mut tie) = (tri.t, tri.tie);
         let mut sphere_hit = false;
