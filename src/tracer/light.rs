@@ -5,7 +5,7 @@
 // `!(x > 0.0)` is used on purpose: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::bvh::{Geometry, Prim, NONE};
+use super::bvh::{Geometry, Prim, PrimShape, NONE};
 use super::sampling::{average, uniform_cone, uniform_sphere, uniform_triangle, Frame};
 use crate::scene::{Light, Material, Scene};
 use glam::{Vec2, Vec3};
@@ -91,10 +91,13 @@ impl Lights {
         let r_scene = f64::from(geo.bounds_radius);
         for (i, prim) in geo.prims.iter().enumerate() {
             let info = &mut geo.info[i];
+            let material = geo.object_material.get(info.object as usize);
             let Some(Material::Emissive {
                 radiance,
                 two_sided,
-            }) = scene.materials.get(info.material as usize).copied()
+            }) = material
+                .and_then(|&m| scene.materials.get(m as usize))
+                .copied()
             else {
                 continue;
             };
@@ -379,8 +382,8 @@ fn sphere_cone(to_c: Vec3, r2: f32, radiance: Vec3, prim: u32, sel: f32, u: Vec2
 
 /// The emitter of the emissive primitive `prim` (index `i`) and its surface area.
 fn area_emitter(prim: &Prim, i: u32, radiance: Vec3, two_sided: bool) -> (Emitter, f64) {
-    match *prim {
-        Prim::Tri { v0, e1, e2 } => {
+    match prim.shape() {
+        PrimShape::Tri { v0, e1, e2 } => {
             let c = Vec3::from(e1).cross(Vec3::from(e2));
             let area = 0.5 * c.length();
             (
@@ -397,7 +400,7 @@ fn area_emitter(prim: &Prim, i: u32, radiance: Vec3, two_sided: bool) -> (Emitte
                 f64::from(area),
             )
         }
-        Prim::Sphere { center, radius } => (
+        PrimShape::Sphere { center, radius } => (
             Emitter::Sphere {
                 prim: i,
                 center: center.into(),

@@ -20,7 +20,7 @@
 //! (decided once in [`CameraRays::build`], STYLE.md "branch on scene features when the
 //! scene is prepared").
 
-use super::bvh::{Geometry, Hit, Prim, NONE};
+use super::bvh::{Geometry, Hit, Prim, PrimShape, NONE};
 use super::camera::Pinhole;
 use glam::{Vec3, Vec3A, Vec4};
 use std::collections::HashMap;
@@ -337,8 +337,8 @@ impl Packed {
         let s0 = self.spheres.len() as u32;
         let mut lanes = 0usize;
         for &i in l {
-            match geo.prims[i as usize] {
-                Prim::Tri { v0, e1, e2 } => {
+            match geo.prims[i as usize].shape() {
+                PrimShape::Tri { v0, e1, e2 } => {
                     let k = lanes % 4;
                     if k == 0 {
                         self.packets.push(EMPTY_PACKET);
@@ -359,7 +359,7 @@ impl Packed {
                     pk.prim[k] = i;
                     lanes += 1;
                 }
-                Prim::Sphere { center, radius } => {
+                PrimShape::Sphere { center, radius } => {
                     let f = o - center;
                     let r2 = radius * radius;
                     self.spheres.push(CamSphere {
@@ -404,14 +404,14 @@ fn region(
     tiles_y: u32,
 ) -> Region {
     let mut pts = [Vec3::ZERO; 8];
-    let pts: &[Vec3] = match *p {
-        Prim::Tri { v0, e1, e2 } => {
+    let pts: &[Vec3] = match p.shape() {
+        PrimShape::Tri { v0, e1, e2 } => {
             pts[0] = v0.into();
             pts[1] = (v0 + e1).into();
             pts[2] = (v0 + e2).into();
             &pts[..3]
         }
-        Prim::Sphere { center, radius } => {
+        PrimShape::Sphere { center, radius } => {
             for (k, q) in pts.iter_mut().enumerate() {
                 let s = |bit: usize| if k & bit == 0 { -radius } else { radius };
                 *q = Vec3::from(center) + Vec3::new(s(1), s(2), s(4));
