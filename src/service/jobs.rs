@@ -207,21 +207,25 @@ pub enum DeleteOutcome {
 /// How a worker renders a validated scene. The service always uses [`render_scene`];
 /// unit tests substitute renderers that panic or block, to test the job boundary.
 pub type RenderFn = fn(
-    &crate::scene::Scene,
+    crate::scene::Scene,
     &mut dyn FnMut(&Frame),
     &CancelToken,
 ) -> Result<Frame, crate::cancel::Cancelled>;
 
 /// The production renderer: the path tracer under the progressive loop.
 pub fn render_scene(
-    scene: &crate::scene::Scene,
+    mut scene: crate::scene::Scene,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
 ) -> Result<Frame, crate::cancel::Cancelled> {
     // Preparing the scene (seconds for the largest mesh a request may hold, a million
     // near-duplicate triangles) stops within a fraction of a second of a cancel.
-    let tracer = PathTracer::prepare(scene, cancel)?;
-    progressive::render(scene, &tracer, &RenderOptions::default(), on_frame, cancel)
+    let tracer = PathTracer::prepare(&scene, cancel)?;
+    // The tracer holds its own copy of every primitive: the scene's triangles (about as
+    // many bytes again) go back before the render starts.
+    scene.release_geometry();
+    crate::service::trim::release_free_memory();
+    progressive::render(&scene, &tracer, &RenderOptions::default(), on_frame, cancel)
 }
 
 /// How this node takes part in rendering (cluster.md).
@@ -1188,7 +1192,7 @@ fn render_job(
         };
         frames.exposure = scene.display.exposure;
         frames.eta = Some(EtaTracker::for_scene(&scene));
-        match (inner.render)(&scene, &mut |f| frames.publish(f), &live.cancel) {
+        match (inner.render)(scene, &mut |f| frames.publish(f), &live.cancel) {
             Ok(f) => Outcome::Done(Box::new(f)),
             Err(_) => Outcome::Cancelled,
         }
@@ -1587,7 +1591,7 @@ mod tests {
 
     /// Sends one frame, then panics as a buggy tracer would.
     fn panicking(
-        scene: &crate::scene::Scene,
+        scene: crate::scene::Scene,
         on_frame: &mut dyn FnMut(&Frame),
         _cancel: &CancelToken,
     ) -> Result<Frame, crate::cancel::Cancelled> {
@@ -1601,7 +1605,7 @@ mod tests {
 
     /// Five frames of a 8×6 image, the last one final, with every layer.
     fn five_frames(
-        scene: &crate::scene::Scene,
+        scene: crate::scene::Scene,
         on_frame: &mut dyn FnMut(&Frame),
         _cancel: &CancelToken,
     ) -> Result<Frame, crate::cancel::Cancelled> {
