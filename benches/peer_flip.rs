@@ -4,8 +4,8 @@
 //! (`scripts/peer_import.py`) at the size and samples `tests/import_pbrt.rs` uses, and both
 //! are judged as that test judges ours: nv-flip at exposure 1 and 28 pixels per degree, the
 //! reference box-averaged to the render's size (the repository's small references,
-//! tests/public-scenes). veach-ajar is left out: its door is image-textured, which the peer
-//! script does not express.
+//! tests/public-scenes). veach-ajar is left out: it is not among those small copies (9.4 MB);
+//! `cargo bench --bench scenes_at_scale` renders it beside Mitsuba at full size.
 //!
 //! `cargo bench --bench peer_flip` (needs `pip install mitsuba numpy`).
 

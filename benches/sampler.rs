@@ -26,8 +26,9 @@ use std::path::{Path, PathBuf};
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
 use glimpse::raster::{codec::to_display_rgb8, LinearImage};
+use glimpse::scene::SamplerKind;
 use glimpse::scene::Scene;
-use glimpse::tracer::{self, sampler::SamplerKind, PathTracer};
+use glimpse::tracer::{self, PathTracer};
 
 /// Seed of the compared renders' second truth half, against the scene's own (any other).
 const HALF_SEED: u64 = 0x5bd1_e995;

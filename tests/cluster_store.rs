@@ -419,7 +419,7 @@ async fn healthz_says_whether_the_node_reaches_its_database() {
 
 /// Renders nothing until it is cancelled (a render long enough to lose its lease in).
 fn until_cancelled(
-    _scene: &glimpse::scene::Scene,
+    _scene: glimpse::scene::Scene,
     _on_frame: &mut dyn FnMut(&glimpse::progressive::Frame),
     cancel: &glimpse::cancel::CancelToken,
 ) -> Result<glimpse::progressive::Frame, glimpse::cancel::Cancelled> {

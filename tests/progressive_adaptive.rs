@@ -6,6 +6,7 @@
 
 use glimpse::cancel::CancelToken;
 use glimpse::progressive::{render, Frame, RenderOptions};
+use glimpse::scene::SamplerKind;
 use glimpse::scene::{RenderMode, Scene};
 use glimpse::tracer::{fixtures::cornell_box, render_reference, PathTracer};
 use std::time::Duration;
@@ -34,8 +35,16 @@ fn run(s: &Scene, opts: &RenderOptions) -> (Frame, Vec<Frame>) {
 
 #[test]
 fn t0_zero_without_the_denoiser_is_the_reference_bit_for_bit() {
+    for sampler in [SamplerKind::Independent, SamplerKind::Sobol] {
+        t0_zero_is_the_reference(sampler);
+    }
+}
+
+/// Passes that continue each pixel's sequence end on exactly the reference's samples.
+fn t0_zero_is_the_reference(sampler: SamplerKind) {
     let mut s = cornell_box(40, 30, 24, 3, 7);
     s.progressive.t0 = 0.0;
+    s.render.sampler = sampler;
     let (last, frames) = run(&s, &raw_adaptive());
     let reference =
         render_reference(&PathTracer::new(&s), &CancelToken::new(), &|_, _| {}).unwrap();
@@ -49,19 +58,31 @@ fn t0_zero_without_the_denoiser_is_the_reference_bit_for_bit() {
         .iter()
         .zip(reference.pixels())
         .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits));
-    assert!(same, "t0 = 0 must end with the reference image exactly");
+    assert!(
+        same,
+        "{sampler:?}: t0 = 0 must end with the reference image exactly"
+    );
 }
 
 #[test]
 fn the_default_t0_stops_before_every_pixel_has_every_sample() {
-    let s = cornell_box(64, 48, 256, 3, 1);
+    for sampler in [SamplerKind::Independent, SamplerKind::Sobol] {
+        stops_before_every_sample(sampler);
+    }
+}
+
+/// With Sobol samples this also checks that a pixel's two halves are independent
+/// replicates: halves of one net would disagree by design and never let a pass stop.
+fn stops_before_every_sample(sampler: SamplerKind) {
+    let mut s = cornell_box(64, 48, 256, 3, 1);
+    s.render.sampler = sampler;
     let (last, frames) = run(&s, &raw_adaptive());
     let full = 64 * 48 * 256;
     assert!(last.last && frames.last().is_some_and(|f| f.last));
     assert!(frames.iter().rev().skip(1).all(|f| !f.last));
     assert!(
         last.stats.samples_traced < full,
-        "{} of {full} samples ({:?})",
+        "{sampler:?}: {} of {full} samples ({:?})",
         last.stats.samples_traced,
         last.stats.stop_reason
     );

@@ -469,7 +469,7 @@ pub struct RenderDoc {
     pub max_bounces: u64,
     pub seed: u64,
     /// `"independent"` (the default) or `"sobol"`.
-    pub sampler: crate::tracer::sampler::SamplerKind,
+    pub sampler: crate::scene::SamplerKind,
     /// `null`/absent: on in adaptive mode, off in the others.
     pub denoise: Option<bool>,
 }
@@ -481,7 +481,7 @@ impl Default for RenderDoc {
             samples_per_pixel: 16,
             max_bounces: 5,
             seed: 1,
-            sampler: crate::tracer::sampler::SamplerKind::Independent,
+            sampler: crate::scene::SamplerKind::Independent,
             denoise: None,
         }
     }

@@ -293,6 +293,30 @@ impl SpotFalloff {
     }
 }
 
+/// Which sampler draws a render's numbers (`render.sampler`; the numbers themselves are
+/// tracer/sampler.rs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SamplerKind {
+    /// Padded Owen-scrambled Sobol (`tracer::sampler::SobolSample`).
+    Sobol,
+    /// An independent PCG32 stream per path (`tracer::rng::Rng`). The default: Sobol's
+    /// gain at equal time is small and the loops' interpolated or denoised pixels do not
+    /// share it (docs/design.md, "Samples").
+    #[default]
+    Independent,
+}
+
+impl SamplerKind {
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SamplerKind::Sobol => "sobol",
+            SamplerKind::Independent => "independent",
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RenderMode {
@@ -323,7 +347,7 @@ pub struct RenderSettings {
     pub max_bounces: u32,
     pub seed: u64,
     /// Which numbers the paths draw (tracer/sampler.rs).
-    pub sampler: crate::tracer::sampler::SamplerKind,
+    pub sampler: crate::scene::SamplerKind,
     /// Whether the final picture (and, in adaptive mode, every pass's) goes through the
     /// denoiser: `render.denoise`; `None` = on in adaptive mode only (decided with the
     /// mode a render actually runs, which the command line and the API can override).

@@ -36,7 +36,7 @@ pub fn scene(
             samples_per_pixel: render.0,
             max_bounces: render.1,
             seed: render.2,
-            sampler: crate::tracer::sampler::SamplerKind::default(),
+            sampler: crate::scene::SamplerKind::default(),
             denoise: None,
         },
         progressive: ProgressiveSettings::default(),

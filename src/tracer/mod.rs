@@ -621,7 +621,7 @@ pub struct PathTracer {
     samples_per_pixel: u32,
     seed: u64,
     /// Which numbers the paths draw (`render.sampler`).
-    sampler: sampler::SamplerKind,
+    sampler: crate::scene::SamplerKind,
     pub(crate) features: Features,
     /// Samples dropped because they were NaN or infinite (diagnostics only).
     dropped: AtomicU64,
@@ -733,10 +733,10 @@ impl PathTracer {
     pub fn camera_jitter(&self, p: PixelCoord, sample: u32, seed: u64) -> glam::Vec2 {
         use sampler::{Dim, PathSampler};
         match self.sampler {
-            sampler::SamplerKind::Sobol => {
+            crate::scene::SamplerKind::Sobol => {
                 sampler::SobolSample::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
             }
-            sampler::SamplerKind::Independent => {
+            crate::scene::SamplerKind::Independent => {
                 rng::Rng::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
             }
         }
@@ -794,12 +794,12 @@ impl PathTracer {
         albedo: &mut Option<Vec3>,
     ) -> SampleSum {
         match self.sampler {
-            sampler::SamplerKind::Sobol => {
+            crate::scene::SamplerKind::Sobol => {
                 self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
                     sampler::SobolSample::for_sample(seed, p.x, p.y, i)
                 })
             }
-            sampler::SamplerKind::Independent => {
+            crate::scene::SamplerKind::Independent => {
                 self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
                     rng::Rng::for_sample(seed, p.x, p.y, i)
                 })

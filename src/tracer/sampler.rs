@@ -3,7 +3,7 @@
 //! (tracer/mod.rs), and a pass that continues a pixel's samples draws the next ones of
 //! the same sequence.
 //!
-//! Two samplers, chosen by `render.sampler` ([`SamplerKind`]):
+//! Two samplers, chosen by `render.sampler` ([`crate::scene::SamplerKind`]):
 //! - [`SobolSample`]: padded Owen-scrambled Sobol points (pbrt-v4's PaddedSobolSampler,
 //!   Pharr et al. 2023 §8.7.3; hash-based Owen scrambling and index shuffling, Burley
 //!   2020, "Practical Hash-based Owen Scrambling", JCGT 9(4)). Every dimension (a 1-D
@@ -24,29 +24,6 @@
 
 use super::rng::{mix64, Rng};
 use glam::Vec2;
-
-/// Which sampler draws a render's numbers (`render.sampler`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SamplerKind {
-    /// Padded Owen-scrambled Sobol ([`SobolSample`]).
-    Sobol,
-    /// An independent PCG32 stream per path ([`Rng`]). The default: the progressive and
-    /// adaptive loops' own tests measure them against a reference of independent samples
-    /// (a Sobol reference's lower error moves what they compare).
-    #[default]
-    Independent,
-}
-
-impl SamplerKind {
-    #[must_use]
-    pub fn as_str(self) -> &'static str {
-        match self {
-            SamplerKind::Sobol => "sobol",
-            SamplerKind::Independent => "independent",
-        }
-    }
-}
 
 /// What a number is for: its slot in the per-bounce layout.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

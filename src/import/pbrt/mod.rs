@@ -39,7 +39,7 @@ use self::lexer::{Lexer, Pos, Tok};
 use self::params::{Cap, Params};
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{ImageTextureDoc, LightDoc, MaterialDoc};
-use crate::tracer::sampler::SamplerKind;
+use crate::scene::SamplerKind;
 
 /// The most values one parameter may hold outside a mesh's own lists (a camera, a light, a
 /// material, a spectrum's wavelength/value pairs need a few dozen).

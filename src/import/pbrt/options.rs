@@ -6,7 +6,7 @@
 use super::lexer::{Lexer, Pos, Tok};
 use super::params::{self, Params};
 use super::{list_cap, ImportError, Importer, MAX_LIST};
-use crate::tracer::sampler::SamplerKind;
+use crate::scene::SamplerKind;
 
 impl Importer<'_> {
     /// `Camera`: a perspective camera's field of view, at the current transform

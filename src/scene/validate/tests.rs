@@ -898,7 +898,7 @@ fn problem_lists_are_capped() {
 
 #[test]
 fn render_sampler_is_independent_unless_sobol_is_asked_for() {
-    use crate::tracer::sampler::SamplerKind;
+    use crate::scene::SamplerKind;
     assert_eq!(
         parse(&base()).unwrap().render.sampler,
         SamplerKind::Independent

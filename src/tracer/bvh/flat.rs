@@ -6,9 +6,10 @@
 //! most of it node decoding and stack work. Testing all its triangles in packets of eight
 //! (AVX) costs about half of that (closest hit 520, occlusion 460); in packets of four
 //! (SSE2) it cost as much as the traversal, so without AVX the BVH is kept. Sixteen lanes
-//! (two packets side by side) took a further 5 % off a whole render's CPU time. The packets repeat bvh.rs `tri_t` lane by
-//! lane, the same IEEE operations in the same order with no FMA (as primary.rs does for
-//! camera rays), so `t`, `u` and `v` are bit-identical to the traversal's. (One ray in
+//! (two packets side by side) took a further 5 % off a whole render's CPU time. The
+//! packets repeat bvh.rs `tri_t` lane by lane, the same IEEE operations in the same order
+//! with no FMA (as primary.rs does for camera rays), so `t`, `u` and `v` are
+//! bit-identical to the traversal's. (One ray in
 //! ~10⁵ of the unit test's, from a point within 10⁻⁴ of where two walls meet, is hit
 //! nearer than the traversal finds: its box tests skipped a hit that its own triangle
 //! test accepts. Renders of the bundled scenes came out bit-identical.)
