@@ -103,6 +103,22 @@ const QUAD_UVS: [[Vec2; 3]; 2] = [
     [Vec2::ZERO, Vec2::ONE, Vec2::Y],
 ];
 
+/// The quad (corner `c`, edges `u`, `v`) of the object at JSON path `p`, transformed by
+/// `x`, as two triangles with [`QUAD_UVS`] appended to `out`.
+fn push_quad(cx: &mut Ctx, out: &mut Vec<Triangle>, p: &str, x: &Xform, [c, u, v]: [Vec3; 3]) {
+    for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
+        push_triangle(
+            cx,
+            out,
+            || p.to_string(),
+            x,
+            t.map(|q| x.point(q)),
+            None,
+            Some(uv),
+        );
+    }
+}
+
 pub(super) fn check_object(
     cx: &mut Ctx,
     k: usize,
@@ -195,17 +211,7 @@ fn quad(
     }
     let x = x?;
     let mut tris = Vec::with_capacity(2);
-    for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
-        push_triangle(
-            cx,
-            &mut tris,
-            || p.to_string(),
-            &x,
-            t.map(|q| x.point(q)),
-            None,
-            Some(uv),
-        );
-    }
+    push_quad(cx, &mut tris, p, &x, [c, u, v]);
     Some(Shape::Triangles {
         triangles: tris,
         material: material?,
@@ -250,17 +256,7 @@ fn box_object(
     ];
     let mut tris = Vec::with_capacity(12);
     for (c, u, v) in faces {
-        for (t, uv) in quad_corners(c, u, v).into_iter().zip(QUAD_UVS) {
-            push_triangle(
-                cx,
-                &mut tris,
-                || p.to_string(),
-                &x,
-                t.map(|q| x.point(q)),
-                None,
-                Some(uv),
-            );
-        }
+        push_quad(cx, &mut tris, p, &x, [c, u, v]);
     }
     Some(Shape::Triangles {
         triangles: tris,
