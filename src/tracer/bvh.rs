@@ -540,8 +540,8 @@ fn in_leaf_order(
     let order = std::mem::take(&mut bvh.primitive_indices);
     let prims = order.iter().map(|&i| prims[i as usize]).collect();
     let info = order.iter().map(|&i| info[i as usize]).collect();
-    // The traversal hands back leaf slots, which now address `prims` directly: the
-    // permutation is not needed any more (4 B a primitive).
+    // The traversal hands back leaf slots and `prims` is stored in leaf order, so the
+    // permutation is not kept (4 B a primitive).
     Ok((Some(bvh), prims, info))
 }
 
@@ -568,7 +568,7 @@ fn without_duplicates(
         PrimShape::Sphere { .. } => None,
     };
     // A 64-bit fingerprint of each key (computed in parallel) is what the set holds: a
-    // table of 12-byte entries instead of 40-byte keys stays in cache far longer, and
+    // table of 16-byte entries instead of 40-byte keys stays in cache far longer, and
     // hashing was a fifth of a large mesh's build (perf). A fingerprint seen before is
     // confirmed against the kept triangle's key; a mere collision keeps the triangle.
     // foldhash's per-process random seed keeps collisions out of a request's reach.
