@@ -1,8 +1,8 @@
 //! The Sobol sampler's error beside the independent sampler's, in one run: equal samples
 //! (16, 32 and 64 per pixel), the same seed, each judged by LDR-FLIP at the scene's
 //! declared pixels per degree and exposure against a converged truth, on every bundled
-//! scene (scenes/*.json) and on a generated corpus (src/bench/corpus.rs). The issue's
-//! acceptance: sobol/independent ≤ 0.8 on every bundled scene and on the corpus median, at
+//! scene (scenes/*.json) and on a generated corpus (src/bench/corpus.rs). The targets:
+//! sobol/independent ≤ 0.8 on every bundled scene and on the corpus median, at
 //! every sample count, and no scene worse by more than 2 %.
 //!
 //! The truth is two renders of independent seeds (Sobol, half the truth's samples each,
