@@ -169,10 +169,15 @@ fn with_the_denoiser_every_pass_is_denoised_and_closer_to_the_truth_than_the_ref
     let reference = render_reference(&t, &cancel, &|_, _| {}).unwrap();
     let truth =
         glimpse::tracer::render_reference_with(&t, Some((1024, 99)), &cancel, &|_, _| {}).unwrap();
-    let (ours, theirs) = (mean_abs(&last.image, &truth), mean_abs(&reference, &truth));
+    // As a person sees it (LDR-FLIP at the scene's display and ppd, the study's judge):
+    // the loop stops below the reference's visible error, so closer to the truth, with
+    // fewer samples.
+    let d = &s.display;
+    let judge = |img| glimpse::bench::flip::flip(&truth, img, d.exposure, d.pixels_per_degree);
+    let (ours, theirs) = (judge(&last.image).mean, judge(&reference).mean);
     assert!(
-        ours < theirs,
-        "adaptive + denoiser {ours:.4} vs reference {theirs:.4} ({} of {} samples)",
+        ours < theirs && last.stats.samples_traced < 96 * 72 * 64,
+        "adaptive + denoiser {ours:.5} vs reference {theirs:.5} ({} of {} samples)",
         last.stats.samples_traced,
         96 * 72 * 64
     );

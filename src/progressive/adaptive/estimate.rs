@@ -120,6 +120,35 @@ pub fn visible_error(
     Some(block_map(model, &a, &b, &[], params).map)
 }
 
+/// The error a person would see in the reference (every pixel at `max_spp`, not
+/// denoised), predicted per pixel from the raw halves: their half-buffer error, scaled by
+/// √(n / `max_spp`) at a pixel of n samples (Monte Carlo error falls as 1/√n), judged as
+/// [`visible_error`] judges the picture's. The adaptive loop never asks a tile for less
+/// error than the full render would leave there: the promise is a picture no further from
+/// the truth than the reference.
+#[must_use]
+pub fn reference_visible(
+    model: &VisionModel,
+    raw: (&LinearImage, &LinearImage),
+    counts: &Image<u32>,
+    max_spp: u32,
+    params: &MetricParams,
+) -> Option<Image<f32>> {
+    let pic = picture(raw, &Filter::Raw, Quality::Fast).ok()?;
+    let max = f64::from(max_spp.max(1));
+    let error = Image::from_vec(
+        pic.error.width(),
+        pic.error.height(),
+        pic.error
+            .pixels()
+            .iter()
+            .zip(counts.pixels())
+            .map(|(&e, &n)| e * (f64::from(n) / max).sqrt().min(1.0) as f32)
+            .collect(),
+    )?;
+    visible_error(model, &Picture { error, ..pic }, params)
+}
+
 /// Per-tile pooling of a per-pixel map: the mean over each `tile`×`tile` block,
 /// row-major over the tiles.
 #[must_use]
@@ -150,6 +179,39 @@ mod tests {
         let map = Image::from_fn(5, 3, |x, _| x as f32);
         // Tiles of 4: columns 0..4 (mean 1.5) and column 4 (mean 4).
         assert_eq!(pool_mean(&map, 4), [1.5, 4.0]);
+    }
+
+    #[test]
+    fn the_reference_leaves_less_error_the_more_samples_it_has_left_to_add() {
+        use crate::vision::DisplayModel;
+        let (w, h) = (64, 64);
+        let model = VisionModel::new(
+            DisplayModel {
+                peak_luminance: 100.0,
+                black_luminance: 0.5,
+                exposure: 1.0,
+                pixels_per_degree: 40.0,
+            },
+            w,
+            h,
+        );
+        // Two halves differing by a checker of ±0.1 around 0.3: visible noise at 8 spp.
+        let a = Image::from_fn(w, h, |x, y| Rgb::splat(0.3 + 0.1 * ((x + y) % 2) as f32));
+        let b = Image::from_fn(w, h, |x, y| {
+            Rgb::splat(0.3 + 0.1 * ((x + y + 1) % 2) as f32)
+        });
+        let counts = Image::filled(w, h, 8u32);
+        let params = MetricParams {
+            homogeneity: 0.5,
+            epsilon: 0.5,
+            seed: 1,
+        };
+        let mean = |m: Image<f32>| m.pixels().iter().sum::<f32>() / m.len() as f32;
+        let at = |max| mean(reference_visible(&model, (&a, &b), &counts, max, &params).unwrap());
+        let (now, ref64, ref1024) = (at(8), at(64), at(1024));
+        assert!(now > ref64 && ref64 > ref1024, "{now} {ref64} {ref1024}");
+        // Fewer samples than already traced: the error is the picture's own, never more.
+        assert_eq!(at(4), now);
     }
 
     #[test]

@@ -34,6 +34,13 @@ use std::time::{Duration, Instant};
 /// one pixel's estimate is itself noise (a few samples per half), a tile's mean is not.
 pub const TILE: u32 = 8;
 
+/// A tile may keep this share of the visible error the reference would leave there
+/// ([`estimate::reference_visible`]), when that is more than 1 JND: asking a denoised
+/// picture for less error than the full render has is what made the door trace every
+/// sample. The half images measure the noise the denoiser leaves, not the detail it blurs
+/// away, so the loop keeps a margin below the reference rather than aiming at it.
+pub const REFERENCE_SHARE: f32 = 0.5;
+
 /// What an adaptive render is asked for.
 #[derive(Clone, Debug)]
 pub struct Settings {
@@ -90,6 +97,15 @@ impl Stop {
             Stop::TracedRest => "traced_rest",
         }
     }
+}
+
+/// What a pass's judgement found.
+struct Judged {
+    pic: Picture,
+    /// The picture's visible error (JND per pixel); `None` if the model could not judge.
+    visible: Option<Image<f32>>,
+    /// The reference's predicted visible error, when the picture is denoised.
+    reference: Option<Image<f32>>,
 }
 
 /// The loop's state between passes.
@@ -149,8 +165,12 @@ pub fn render(
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
     for pass in 0.. {
         let traced = lp.trace(oracle, &extra, cancel)?;
-        let (pic, visible) = lp.judge(pass);
-        let tiles = lp.tiles(visible.as_ref());
+        let Judged {
+            pic,
+            visible,
+            reference,
+        } = lp.judge(pass);
+        let tiles = lp.tiles(visible.as_ref(), reference.as_ref());
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
             return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
         }
@@ -199,9 +219,10 @@ impl Loop<'_> {
         Ok(traced)
     }
 
-    /// The pass's picture (the mean of its halves reconstructed at the streamed quality)
-    /// and the visible error left in it.
-    fn judge(&mut self, pass: u32) -> (Picture, Option<Image<f32>>) {
+    /// The pass's picture (the mean of its halves reconstructed at the streamed quality),
+    /// the visible error left in it and, when it is denoised, the visible error the
+    /// reference would leave ([`estimate::reference_visible`]).
+    fn judge(&mut self, pass: u32) -> Judged {
         let t = Instant::now();
         let (a, b) = self.pixels.halves();
         let pic = match estimate::picture((&a, &b), &self.filter, Quality::Fast) {
@@ -218,8 +239,21 @@ impl Loop<'_> {
             ..self.settings.metric
         };
         let visible = estimate::visible_error(&self.model, &pic, &params);
+        // Raw, the picture is the reference's estimator: its error can only reach the
+        // reference's at max_spp, so there is nothing to compare.
+        let reference = if self.filter.denoises() {
+            let counts = self.pixels.counts();
+            let max = self.settings.max_spp;
+            estimate::reference_visible(&self.model, (&a, &b), &counts, max, &params)
+        } else {
+            None
+        };
         self.stats.metric_ms += ms(t.elapsed());
-        (pic, visible)
+        Judged {
+            pic,
+            visible,
+            reference,
+        }
     }
 
     /// The picture of all the samples so far, reconstructed at `quality`; the raw mean if
@@ -251,12 +285,15 @@ impl Loop<'_> {
         estimate::picture(halves, &Filter::Raw, Quality::Fast).expect("raw cannot fail")
     }
 
-    /// Each tile's samples, visible error and cost.
-    fn tiles(&self, visible: Option<&Image<f32>>) -> Vec<Tile> {
+    /// Each tile's samples, visible error and cost. The error is counted in what the tile
+    /// may keep: 1 JND, or [`REFERENCE_SHARE`] of the reference's own visible error where
+    /// that is larger.
+    fn tiles(&self, visible: Option<&Image<f32>>, reference: Option<&Image<f32>>) -> Vec<Tile> {
         let counts = self.pixels.counts();
         let cost = self.pixels.cost();
         let (w, h) = (counts.width(), counts.height());
         let pooled = visible.map(|v| estimate::pool_mean(v, TILE));
+        let allowed = reference.map(|r| estimate::pool_mean(r, TILE));
         let (tw, th) = (w.div_ceil(TILE), h.div_ceil(TILE));
         let mut tiles = Vec::with_capacity((tw * th) as usize);
         for ty in 0..th {
@@ -277,7 +314,10 @@ impl Loop<'_> {
                     pixels,
                     samples,
                     // Unjudged: unfinished, as visible as the worst the metric reports.
-                    visible: pooled.as_ref().map_or(f32::INFINITY, |p| p[i]),
+                    visible: pooled.as_ref().map_or(f32::INFINITY, |p| {
+                        let reference = allowed.as_ref().map_or(0.0, |a| a[i] * REFERENCE_SHARE);
+                        p[i] / reference.max(1.0)
+                    }),
                     cost: c / pixels as f32,
                 });
             }
