@@ -8,12 +8,13 @@ use crate::scene::{MaterialId, ObjectId, Scene, Shape};
 use glam::{Vec2, Vec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
-use obvhs::ray::{Ray as BvhRay, RayHit};
+use obvhs::ray::Ray as BvhRay;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 use std::hash::BuildHasher;
 
 mod flat;
+mod traverse;
 
 /// Marks "no such index" (no emitter, no shading normals, no primitive to skip).
 pub const NONE: u32 = u32::MAX;
@@ -126,6 +127,8 @@ pub struct Surface {
 
 pub struct Geometry {
     bvh: Option<CwBvh>,
+    /// The CPU has AVX2: the BVH is walked by bvh/traverse.rs's eight-box node test.
+    avx2: bool,
     /// Every primitive in SIMD packets, for scenes small enough that testing them all
     /// beats a traversal (bvh/flat.rs).
     flat: Option<flat::Flat>,
@@ -185,6 +188,7 @@ impl Geometry {
         let (bvh, prims, info) = in_leaf_order(aabbs, prims, info, cancel)?;
         Ok(Self {
             bvh,
+            avx2: traverse::has_avx2(),
             flat: flat::Flat::build(&prims),
             prims,
             info,
@@ -214,22 +218,12 @@ impl Geometry {
     #[inline]
     fn traverse(&self, o: Vec3, d: Vec3, ray: BvhRay, skip: u32) -> Option<Hit> {
         let bvh = self.bvh.as_ref()?;
-        let mut hit = RayHit::none();
-        if bvh.ray_traverse(ray, &mut hit, |r, id| self.prim_t(r, id as u32, skip)) {
-            let prim = hit.primitive_id;
-            let (u, v) = match self.prims[prim as usize].shape() {
-                PrimShape::Tri { v0, e1, e2 } => tri_uv(r_o(o), r_o(d), v0, e1, e2),
-                PrimShape::Sphere { .. } => (0.0, 0.0),
-            };
-            Some(Hit {
-                t: hit.t,
-                prim,
-                u,
-                v,
-            })
-        } else {
-            None
-        }
+        let (prim, t) = traverse::closest(bvh, ray, self.avx2, |r, id| self.prim_t(r, id, skip))?;
+        let (u, v) = match self.prims[prim as usize].shape() {
+            PrimShape::Tri { v0, e1, e2 } => tri_uv(r_o(o), r_o(d), v0, e1, e2),
+            PrimShape::Sphere { .. } => (0.0, 0.0),
+        };
+        Some(Hit { t, prim, u, v })
     }
 
     /// True if anything blocks `o + t·d` for `t < tmax`.
@@ -242,7 +236,7 @@ impl Geometry {
             return false;
         };
         let ray = BvhRay::new(o.into(), d.into(), 0.0, tmax);
-        !bvh.ray_traverse_miss(ray, |r, id| self.prim_t(r, id as u32, skip))
+        traverse::any(bvh, ray, self.avx2, |r, id| self.prim_t(r, id, skip))
     }
 
     #[inline(always)]
