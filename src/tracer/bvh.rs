@@ -632,8 +632,9 @@ const TIE_BREAK: f32 = 1e-4;
 ///
 /// Every term is computed and the acceptance tests combined with `&`, not tested one by
 /// one: a ray through a BVH leaf meets its triangles' edges in no pattern a branch
-/// predictor can learn. A NaN fails every test but `v`'s, as the tests are written
-/// (then `u + v` or `t` fails). The arithmetic is unchanged: hits are bit-identical.
+/// predictor can learn. Each test is the one a test-and-return version makes, NaN
+/// behaviour included (a NaN passes `!outside` and fails the others), and the arithmetic
+/// is unchanged: hits are bit-identical.
 #[inline(always)]
 fn tri_t(r: &BvhRay, v0: Vec3A, e1: Vec3A, e2: Vec3A) -> f32 {
     let pv = r.direction.cross(e2);
@@ -644,11 +645,11 @@ fn tri_t(r: &BvhRay, v0: Vec3A, e1: Vec3A, e2: Vec3A) -> f32 {
     let qv = tv.cross(e1);
     let v = r.direction.dot(qv) * inv;
     let t = e2.dot(qv) * inv;
+    let outside = (v < 0.0) | (u + v > 1.0);
     let hit = (det != 0.0)
         & det.is_finite()
         & (0.0..=1.0).contains(&u)
-        & !(v < 0.0)
-        & !(u + v > 1.0)
+        & !outside
         & (t > r.tmin)
         & (t < r.tmax);
     if hit {
