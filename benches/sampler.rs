@@ -206,7 +206,7 @@ fn main() {
     let corpus_dir = o.cache.join("corpus");
     std::fs::create_dir_all(&corpus_dir).expect("corpus folder");
     let mut corpus_rows = Vec::new();
-    for g in corpus::generate(o.corpus, 1, corpus::Profile::Small) {
+    for g in corpus::generate(o.corpus, 1) {
         let path = corpus_dir.join(format!("{}.json", g.name));
         std::fs::write(&path, &g.document).expect("corpus document written");
         let e = judge(&load(&path, &o), &o, None);

@@ -243,7 +243,10 @@ fn bench_judges_a_generated_corpus_against_a_cached_truth() {
         assert_eq!(ppd, f64::from(scene.display.pixels_per_degree));
         assert!((20.0..=100.0).contains(&ppd));
         let truth_spp = r["truth"]["spp"].as_u64().unwrap();
-        assert!(truth_spp >= 16 * u64::from(scene.render.samples_per_pixel), "{r}");
+        assert!(
+            truth_spp >= 16 * u64::from(scene.render.samples_per_pixel),
+            "{r}"
+        );
         let conditions = r["conditions"].as_array().unwrap();
         assert_eq!(conditions.len(), 1, "the declared condition only");
         let own = conditions[0]["truth_self_flip"].as_f64().unwrap();

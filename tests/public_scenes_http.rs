@@ -191,8 +191,7 @@ fn no_public_bundled_or_generated_scene_is_taken_for_a_mistake() {
         assert_no_mistake(name, &warnings);
     }
     for seed in [1, 2] {
-        for g in glimpse::bench::corpus::generate(40, seed, glimpse::bench::corpus::Profile::Small)
-        {
+        for g in glimpse::bench::corpus::generate(40, seed) {
             let s = glimpse::scene::parse_scene(
                 &g.document,
                 &glimpse::scene::SceneOrigin::Request,

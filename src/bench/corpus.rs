@@ -65,10 +65,16 @@ pub const USERS_SPP: (u32, u32) = (64, 1024);
 /// samples per second: references of about 1 to 20 s (up to ~40 s for a large room).
 pub const USERS_SAMPLES: (u64, u64) = (1 << 21, 1 << 25);
 
+/// The `n` documents of `seed` in the small profile.
+#[must_use]
+pub fn generate(n: usize, seed: u64) -> Vec<CorpusScene> {
+    generate_in(n, seed, Profile::Small)
+}
+
 /// The `n` documents of `seed` in `profile`: the same seed and profile give the same
 /// documents, byte for byte.
 #[must_use]
-pub fn generate(n: usize, seed: u64, profile: Profile) -> Vec<CorpusScene> {
+pub fn generate_in(n: usize, seed: u64, profile: Profile) -> Vec<CorpusScene> {
     (0..n)
         .map(|i| {
             // One stream per scene: scene i does not change when n does.
@@ -335,7 +341,7 @@ mod tests {
     #[test]
     fn every_generated_scene_validates_within_the_declared_ranges() {
         for seed in [0, 1, 42, u64::MAX] {
-            for c in generate(60, seed, Profile::Small) {
+            for c in generate(60, seed) {
                 let s = parse_scene(&c.document, &SceneOrigin::Request, &Limits::command_line())
                     .unwrap_or_else(|e| panic!("{}: {e}\n{}", c.name, c.document));
                 assert!(s.warnings.is_empty(), "{}: {:?}", c.name, s.warnings);
@@ -354,8 +360,8 @@ mod tests {
 
     #[test]
     fn a_seed_gives_the_same_documents_and_another_seed_others() {
-        let a = generate(5, 7, Profile::Small);
-        let b = generate(8, 7, Profile::Small);
+        let a = generate(5, 7);
+        let b = generate(8, 7);
         for (x, y) in a.iter().zip(&b) {
             assert_eq!(
                 (&x.name, &x.document),
@@ -363,13 +369,13 @@ mod tests {
                 "scene i does not depend on n"
             );
         }
-        let c = generate(5, 8, Profile::Small);
+        let c = generate(5, 8);
         assert!(a.iter().zip(&c).all(|(x, y)| x.document != y.document));
     }
 
     #[test]
     fn six_scenes_hold_every_material_and_light_and_both_stages() {
-        let docs: Vec<Value> = generate(40, 3, Profile::Small)
+        let docs: Vec<Value> = generate(40, 3)
             .iter()
             .map(|c| serde_json::from_str(&c.document).unwrap())
             .collect();
@@ -419,19 +425,19 @@ mod tests {
     /// before the users' profile existed (written by `glimpse bench --corpus 3`).
     #[test]
     fn the_small_profile_s_seeds_give_the_documents_they_always_gave() {
-        assert_eq!(
-            digest(&generate(3, 1, Profile::Small)),
-            0x2d5e_b5b5_335b_4747
-        );
+        assert_eq!(digest(&generate(3, 1)), 0x2d5e_b5b5_335b_4747);
     }
 
     #[test]
     fn the_users_profile_draws_users_sizes_and_samples_deterministically() {
         let (mut longs, mut spps) = (Vec::new(), Vec::new());
         for seed in [0, 1, 42, u64::MAX] {
-            let docs = generate(60, seed, Profile::Users);
-            assert_eq!(digest(&docs), digest(&generate(60, seed, Profile::Users)));
-            assert_ne!(digest(&docs), digest(&generate(60, seed, Profile::Small)));
+            let docs = generate_in(60, seed, Profile::Users);
+            assert_eq!(
+                digest(&docs),
+                digest(&generate_in(60, seed, Profile::Users))
+            );
+            assert_ne!(digest(&docs), digest(&generate(60, seed)));
             for c in docs {
                 let s = parse_scene(&c.document, &SceneOrigin::Request, &Limits::command_line())
                     .unwrap_or_else(|e| panic!("{}: {e}\n{}", c.name, c.document));

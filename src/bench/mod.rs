@@ -348,7 +348,7 @@ fn public_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 /// Long side of a public scene in the study, pixels: the size people render.
 pub const PUBLIC_SIDE: u32 = 512;
 /// A public scene's reference should take about this long here, seconds ([`public_samples`]).
-pub const PUBLIC_REFERENCE_S: f64 = 4.0;
+pub const PUBLIC_REFERENCE_S: f64 = 8.0;
 
 /// A public scene at [`PUBLIC_SIDE`] on its long side, with [`public_samples`] per pixel
 /// (its file's samples are for another renderer and another machine).
@@ -379,11 +379,12 @@ const PILOT_SPP: u32 = 2;
 
 /// Samples per pixel for a reference of about `target_s` when one sample per pixel takes
 /// `per_sample_ms`: the largest power of two within it (so a noisy pilot rarely changes
-/// the choice, and the truth's cache stays valid), from 4 to 4096.
+/// the choice, and the truth's cache stays valid), from 16 to 4096: fewer samples than 16
+/// is no reference anyone renders (and the adaptive loop's first pass alone costs more).
 #[must_use]
 pub fn public_samples(per_sample_ms: f64, target_s: f64) -> u32 {
     let fit = target_s * 1e3 / per_sample_ms.max(1e-9);
-    let pow = fit.max(1.0).log2().floor().clamp(2.0, 12.0);
+    let pow = fit.max(1.0).log2().floor().clamp(4.0, 12.0);
     1 << (pow as u32)
 }
 
@@ -431,7 +432,7 @@ fn run_corpus(
     let dir = cfg.out_dir.join("corpus");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut results = Vec::new();
-    for (k, generated) in corpus::generate(c.scenes, c.seed, c.profile)
+    for (k, generated) in corpus::generate_in(c.scenes, c.seed, c.profile)
         .into_iter()
         .enumerate()
     {
@@ -1154,7 +1155,7 @@ mod tests {
     fn a_public_scene_gets_the_largest_power_of_two_that_fits_its_reference_time() {
         assert_eq!(public_samples(1.0, 4.0), 2048, "4000 fit");
         assert_eq!(public_samples(10.0, 4.0), 256, "400 fit");
-        assert_eq!(public_samples(1e4, 4.0), 4, "fewer than 4 fit: 4");
+        assert_eq!(public_samples(1e3, 4.0), 16, "4 fit: 16");
         assert_eq!(public_samples(1e-6, 4.0), 4096, "at most 4096");
         assert_eq!(public_samples(0.0, 4.0), 4096, "a pilot too fast to time");
     }

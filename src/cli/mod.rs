@@ -226,7 +226,7 @@ pub struct BenchArgs {
     pub corpus_profile: crate::bench::corpus::Profile,
     /// Also study the public scenes of DIR (each NAME/scene-v4.pbrt, e.g. the shared
     /// scenes-public folder) at 512 px on the long side, with the samples per pixel that
-    /// make a reference of about 4 s here. Not run with --quick.
+    /// make a reference of about 8 s here (16 at least). Not run with --quick.
     #[arg(long, value_name = "DIR")]
     pub public: Option<PathBuf>,
     /// Judge every scene at the --ppd conditions only (truth, Q and time, adaptive against
