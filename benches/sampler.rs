@@ -17,8 +17,7 @@
 //! - `SAMPLER_SPP=16,32,64`: the sample counts compared.
 //! - `SAMPLER_CROPS=DIR`: side-by-side crops (independent | sobol | truth, at the first
 //!   count) of every bundled scene written there as PNG.
-//! - `SAMPLER_TRUTH=N`: the truth's samples per pixel (default 1024, a multiple of
-//!   2 × `TRUTH_SPP_FACTOR`).
+//! - `SAMPLER_TRUTH=N`: the truth's samples per pixel (default 1024, even: two halves).
 //! - `SAMPLER_CACHE=DIR`: where truths are cached (default target/sampler-truth).
 
 use std::path::{Path, PathBuf};
@@ -90,16 +89,15 @@ fn render(scene: &Scene, kind: SamplerKind, spp: u32, seed: u64) -> LinearImage 
 fn truth_of(loaded: &Loaded, o: &Options) -> (LinearImage, f64) {
     let mut s = loaded.scene.clone();
     s.render.sampler = SamplerKind::Sobol;
-    // converged() traces TRUTH_SPP_FACTOR × the scene's count; each half is half the truth.
-    s.render.samples_per_pixel = (o.truth_spp / (2 * truth::TRUTH_SPP_FACTOR)).max(1);
+    // Each half is half the truth.
+    let half_spp = (o.truth_spp / 2).max(1);
     let key = format!("{}\nsampler sobol, halves", loaded.document);
     let half = |seed: u64| {
-        let mut h = s.clone();
-        h.render.seed = seed;
-        let t = PathTracer::new(&h);
-        truth::converged(&h, &key, &t, &o.cache, &CancelToken::new())
+        let t = PathTracer::new(&s);
+        let spp_seed = (half_spp, seed);
+        truth::cached_render(&s, &key, &t, &o.cache, spp_seed, &CancelToken::new())
             .expect("truth")
-            .image
+            .0
     };
     let (a, b) = (half(s.render.seed), half(s.render.seed ^ HALF_SEED));
     let d = &s.display;

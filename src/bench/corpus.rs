@@ -10,7 +10,13 @@
 //! `i` of the lists below, so any 6 consecutive scenes hold every material and light.
 //! Lights are set so that a lit diffuse surface shows about 0.5 at exposure 1; the
 //! exposure then spans 1/16 (dark) to 8 (blinding). Size, samples and viewing condition
-//! are drawn as [`draw_size`], [`draw_spp`] and [`PPD_RANGE`] say.
+//! are drawn as the [`Profile`] and [`PPD_RANGE`] say.
+//!
+//! Two profiles: [`Profile::Small`] (the default, and what `--quick` and the tests run:
+//! references under a second) and [`Profile::Users`], the sizes and samples people render
+//! (256–1024 px on the long side, 64 samples per pixel and up, references of about 1–20 s
+//! on the 2-core machine the study runs on). The profiles draw from the same stream; a
+//! seed of the small profile gives the documents it always gave.
 
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -38,16 +44,44 @@ pub struct CorpusScene {
     pub document: String,
 }
 
-/// The `n` documents of `seed`: the same seed gives the same documents, byte for byte.
+/// Which sizes and samples a corpus draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Profile {
+    /// [`LONG_SIDE`], [`SPP`] within [`SAMPLE_BUDGET`]: references of 0.5–1 s.
+    #[default]
+    Small,
+    /// [`USERS_LONG_SIDE`], [`USERS_SPP`], a reference of [`USERS_SAMPLES`] samples.
+    Users,
+}
+
+/// Users' profile: long side of the image, pixels (256 to 1024), log-uniform below the
+/// side that keeps [`USERS_SPP`]'s least within the drawn samples.
+pub const USERS_LONG_SIDE: (u32, u32) = (256, 1024);
+/// Users' profile: samples per pixel (64 to 1024).
+pub const USERS_SPP: (u32, u32) = (64, 1024);
+/// Users' profile: samples of one reference (width × height × spp), log-uniform: 2^21 to
+/// 2^25. Measured here (2 cores, `glimpse render --stats`, shared machine), the generated
+/// scenes trace 0.9 (rooms, 5–6 bounces) to 2.8 (open scenes under the sky) million
+/// samples per second: references of about 1 to 20 s (up to ~40 s for a large room).
+pub const USERS_SAMPLES: (u64, u64) = (1 << 21, 1 << 25);
+
+/// The `n` documents of `seed` in the small profile.
 #[must_use]
 pub fn generate(n: usize, seed: u64) -> Vec<CorpusScene> {
+    generate_in(n, seed, Profile::Small)
+}
+
+/// The `n` documents of `seed` in `profile`: the same seed and profile give the same
+/// documents, byte for byte.
+#[must_use]
+pub fn generate_in(n: usize, seed: u64, profile: Profile) -> Vec<CorpusScene> {
     (0..n)
         .map(|i| {
             // One stream per scene: scene i does not change when n does.
             let mut rng =
                 Pcg64::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
             let name = format!("corpus-{seed}-{i:03}");
-            let doc = scene(&mut rng, &name, i);
+            let doc = scene(&mut rng, &name, i, profile);
             CorpusScene {
                 name,
                 document: serde_json::to_string_pretty(&doc).expect("a json! value serialises"),
@@ -75,6 +109,38 @@ fn draw_size(rng: &mut Pcg64) -> (u32, u32) {
         (long, short)
     } else {
         (short, long)
+    }
+}
+
+/// Users' (width, height, samples per pixel): the reference's samples log-uniform in
+/// [`USERS_SAMPLES`], the long side log-uniform from [`USERS_LONG_SIDE`]'s least up to the
+/// side at which [`USERS_SPP`]'s least fills those samples (a large image gets few
+/// samples, a small one many), then the samples per pixel that fill them.
+fn draw_users(rng: &mut Pcg64) -> (u32, u32, u32) {
+    let samples = log_uniform(rng, USERS_SAMPLES.0 as f32, USERS_SAMPLES.1 as f32);
+    let aspect = [1.0, 4.0 / 3.0, 1.5, 16.0 / 9.0][rng.random_range(0..4)];
+    let (lo, hi) = (USERS_LONG_SIDE.0 as f32, USERS_LONG_SIDE.1 as f32);
+    // long × long / aspect pixels at the least samples per pixel fill `samples`.
+    let fits = (samples * aspect / USERS_SPP.0 as f32).sqrt().clamp(lo, hi);
+    let long = log_uniform(rng, lo, fits).round() as u32;
+    let short = ((long as f32 / aspect).round() as u32).max(1);
+    let pixels = long as f32 * short as f32;
+    let spp = ((samples / pixels).round() as u32).clamp(USERS_SPP.0, USERS_SPP.1);
+    if rng.random_bool(0.75) {
+        (long, short, spp)
+    } else {
+        (short, long, spp)
+    }
+}
+
+/// (width, height, samples per pixel) as `profile` draws them.
+fn draw_image(rng: &mut Pcg64, profile: Profile) -> (u32, u32, u32) {
+    match profile {
+        Profile::Small => {
+            let (w, h) = draw_size(rng);
+            (w, h, draw_spp(rng, u64::from(w) * u64::from(h)))
+        }
+        Profile::Users => draw_users(rng),
     }
 }
 
@@ -190,7 +256,7 @@ fn lights(
 }
 
 /// One document.
-fn scene(rng: &mut Pcg64, name: &str, i: usize) -> Value {
+fn scene(rng: &mut Pcg64, name: &str, i: usize, profile: Profile) -> Value {
     let room = rng.random_bool(0.5);
     let st = Stage {
         room,
@@ -198,8 +264,7 @@ fn scene(rng: &mut Pcg64, name: &str, i: usize) -> Value {
         h: rng.random_range(2.5..=4.0),
         d: rng.random_range(3.0..=6.0),
     };
-    let (width, height) = draw_size(rng);
-    let spp = draw_spp(rng, u64::from(width) * u64::from(height));
+    let (width, height, spp) = draw_image(rng, profile);
     let mut materials = serde_json::Map::new();
     let mut objects = Vec::new();
     // The stage: walls of a room or a ground plane (normals face the camera's side; only
@@ -344,5 +409,66 @@ mod tests {
             .map(|d| d["display"]["exposure"].as_f64().unwrap())
             .collect();
         assert!(exposures.iter().any(|&e| e < 0.25) && exposures.iter().any(|&e| e > 4.0));
+    }
+
+    /// FNV-1a, 64 bits, of the documents concatenated.
+    fn digest(scenes: &[CorpusScene]) -> u64 {
+        scenes
+            .iter()
+            .flat_map(|c| c.document.bytes())
+            .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+            })
+    }
+
+    /// Seed 1's first three documents of the small profile, byte for byte as they were
+    /// before the users' profile existed (written by `glimpse bench --corpus 3`).
+    #[test]
+    fn the_small_profile_s_seeds_give_the_documents_they_always_gave() {
+        assert_eq!(digest(&generate(3, 1)), 0x2d5e_b5b5_335b_4747);
+    }
+
+    #[test]
+    fn the_users_profile_draws_users_sizes_and_samples_deterministically() {
+        let (mut longs, mut spps) = (Vec::new(), Vec::new());
+        for seed in [0, 1, 42, u64::MAX] {
+            let docs = generate_in(60, seed, Profile::Users);
+            assert_eq!(
+                digest(&docs),
+                digest(&generate_in(60, seed, Profile::Users))
+            );
+            assert_ne!(digest(&docs), digest(&generate(60, seed)));
+            for c in docs {
+                let s = parse_scene(&c.document, &SceneOrigin::Request, &Limits::command_line())
+                    .unwrap_or_else(|e| panic!("{}: {e}\n{}", c.name, c.document));
+                assert!(s.warnings.is_empty(), "{}: {:?}", c.name, s.warnings);
+                let long = s.width.max(s.height);
+                assert!(
+                    (USERS_LONG_SIDE.0..=USERS_LONG_SIDE.1).contains(&long),
+                    "{}",
+                    c.name
+                );
+                let spp = s.render.samples_per_pixel;
+                assert!(
+                    (USERS_SPP.0..=USERS_SPP.1).contains(&spp),
+                    "{}: {spp}",
+                    c.name
+                );
+                let samples = u64::from(spp) * u64::from(s.width) * u64::from(s.height);
+                // The least samples per pixel at the least side may pass the least budget;
+                // rounding the samples per pixel may pass the largest by a little.
+                assert!(samples >= USERS_SAMPLES.0, "{}: {samples}", c.name);
+                assert!(
+                    samples <= USERS_SAMPLES.1 + USERS_SAMPLES.1 / 50,
+                    "{}",
+                    c.name
+                );
+                longs.push(long);
+                spps.push(spp);
+            }
+        }
+        // The ranges are used, not only allowed: large images and many samples both occur.
+        assert!(longs.iter().any(|&l| l >= 700) && longs.iter().any(|&l| l < 320));
+        assert!(spps.iter().any(|&s| s >= 400) && spps.iter().any(|&s| s < 100));
     }
 }

@@ -32,6 +32,8 @@ pub struct Case<'a> {
     pub scene: &'a Scene,
     pub tracer: &'a PathTracer,
     pub truth: &'a LinearImage,
+    /// The truth's two independent halves (their mean is `truth`): its own error.
+    pub truth_halves: (&'a LinearImage, &'a LinearImage),
     /// The independent reference (same samples, another seed): the floor comparison.
     pub judge: &'a LinearImage,
     /// The object-id map (one primary ray per pixel): the objects whose colour is judged.
@@ -58,6 +60,9 @@ pub struct Condition {
     pub reference_flip: f64,
     /// `progressive_flip / reference_flip`.
     pub q: f64,
+    /// FLIP between the truth's two halves: the truth's own error, to be at most
+    /// [`super::truth::SELF_ERROR_SHARE`] of `reference_flip` (or the truth was capped).
+    pub truth_self_flip: f64,
     /// FLIP(progressive, independent reference) ÷ FLIP(reference, independent reference):
     /// the floor comparison, which cannot see error hidden under the reference's noise.
     pub floor_ratio: f64,
@@ -166,6 +171,7 @@ pub fn at_condition(case: &Case, ppd: f32, out_dir: &Path) -> anyhow::Result<Con
         progressive_flip: prog_score.mean,
         reference_flip,
         q: ratio(prog_score.mean, reference_flip),
+        truth_self_flip: flip(case.truth_halves.0, case.truth_halves.1, exposure, ppd).mean,
         floor_ratio: ratio(flip(case.judge, &prog.image, exposure, ppd).mean, floor),
         worst_object_ratio: worst_ratio(&objects),
         objects,
@@ -287,6 +293,7 @@ mod tests {
             progressive_flip: 0.1,
             reference_flip: 0.1,
             q: 1.0,
+            truth_self_flip: 0.0,
             floor_ratio: 1.0,
             objects: Vec::new(),
             worst_object_ratio: 0.0,

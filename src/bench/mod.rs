@@ -73,6 +73,18 @@ pub struct BenchConfig {
     /// Study the scenes of `scenes_dir` (false: the corpus alone).
     pub bundled: bool,
     pub corpus: Option<CorpusConfig>,
+    /// `--public DIR`: the public scenes of DIR (each `NAME/scene-v4.pbrt`), studied like
+    /// the bundled ones at [`PUBLIC_SIDE`] pixels, with samples chosen by
+    /// [`public_samples`]. Not run in quick mode.
+    pub public_dir: Option<PathBuf>,
+    /// Judge every scene at the conditions only (the truth, Q and time, `adaptive` against
+    /// uniform + OIDN), without the per-method table, the time split and the t0 sweeps.
+    pub judge_only: bool,
+    /// Alternating timed runs whose medians make each time ratio.
+    pub runs: usize,
+    /// The longest the truth of one scene may take to trace, estimated from the
+    /// reference's time ([`truth::TruthCheck::cap_ms`]), seconds.
+    pub truth_cap_s: f64,
 }
 
 /// `--corpus N --seed S`.
@@ -80,6 +92,7 @@ pub struct BenchConfig {
 pub struct CorpusConfig {
     pub scenes: usize,
     pub seed: u64,
+    pub profile: corpus::Profile,
     /// Judge each corpus scene also at [`BenchConfig::conditions`], not only at its own
     /// declared pixels per degree.
     pub at_conditions: bool,
@@ -104,9 +117,38 @@ impl BenchConfig {
             },
             bundled: true,
             corpus: None,
+            public_dir: None,
+            judge_only: false,
+            runs: if quick { 1 } else { TIMING_RUNS },
+            truth_cap_s: if quick {
+                QUICK_TRUTH_CAP_S
+            } else {
+                TRUTH_CAP_S
+            },
         }
     }
+
+    /// The viewing conditions a truth must be converged at: every condition of the run,
+    /// and the sweep's unless the scenes are judged at the conditions only.
+    fn truth_ppds(&self) -> Vec<f32> {
+        let mut p = self.conditions.clone();
+        if !self.judge_only {
+            let sweep: &[f32] = if self.quick {
+                &QUICK_CONDITIONS[..1]
+            } else {
+                &SWEEP_CONDITIONS
+            };
+            p.extend(sweep.iter().filter(|s| !self.conditions.contains(s)));
+        }
+        p
+    }
 }
+
+/// The default cap on one truth's tracing time, seconds: a 5 s reference gets a truth of
+/// up to 32× its samples (its first 16× doubled once).
+pub const TRUTH_CAP_S: f64 = 300.0;
+/// `--quick`'s cap: the five examples stay within a few minutes.
+pub const QUICK_TRUTH_CAP_S: f64 = 20.0;
 
 /// The declared viewing conditions judged by default, pixels per degree: 28 is a 2004 display
 /// seen from 50 cm (the scene format's default); 45, 60 and 90 modern desktop and laptop
@@ -202,13 +244,15 @@ pub struct SceneResult {
     pub exposure_check: Option<(f64, f64)>,
     pub time_split: TimeSplit,
     pub targets: Vec<TargetCheck>,
+    pub truth: truth::TruthInfo,
 }
 
-/// A generated scene judged against its truth.
+/// A scene judged against its truth at the conditions only: a generated one, or any with
+/// `--judge-only`.
 #[derive(Clone, Debug, Serialize)]
 pub struct CorpusResult {
     pub scene: String,
-    /// The document, relative to the output folder.
+    /// The document: relative to the output folder for a generated scene, else its path.
     pub file: String,
     pub width: u32,
     pub height: u32,
@@ -218,11 +262,14 @@ pub struct CorpusResult {
     pub declared_ppd: f32,
     /// At the declared ppd first, then at [`BenchConfig::conditions`] if asked.
     pub conditions: Vec<Condition>,
+    pub truth: truth::TruthInfo,
 }
 
 /// Everything one run measured.
 pub struct Study {
     pub scenes: Vec<SceneResult>,
+    /// The bundled and public scenes with `--judge-only`.
+    pub judged: Vec<CorpusResult>,
     pub corpus: Vec<CorpusResult>,
 }
 
@@ -232,6 +279,7 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
         .with_context(|| format!("cannot create {}", cfg.out_dir.display()))?;
     let mut study = Study {
         scenes: Vec::new(),
+        judged: Vec::new(),
         corpus: Vec::new(),
     };
     let files = if cfg.bundled {
@@ -239,21 +287,32 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
     } else {
         Vec::new()
     };
-    let progress = Progress::new(files.len() + cfg.corpus.as_ref().map_or(0, |c| c.scenes));
-    for path in &files {
-        let loaded = load(path, cfg)?;
-        let scene = &loaded.scene;
-        progress.scene(
-            &scene.name,
-            &format!(
-                "{}x{}, {} spp",
-                scene.width, scene.height, scene.render.samples_per_pixel
-            ),
-        );
-        let r = bench_scene(&loaded, cfg, &progress)?;
-        progress.println(&report::scene_table(&r));
+    let public = match &cfg.public_dir {
+        Some(dir) if !cfg.quick => public_files(dir)?,
+        _ => Vec::new(),
+    };
+    let progress =
+        Progress::new(files.len() + public.len() + cfg.corpus.as_ref().map_or(0, |c| c.scenes));
+    let loaded = files
+        .iter()
+        .map(|p| (p, load(p, cfg)))
+        .chain(public.iter().map(|p| (p, load_public(p, cfg))));
+    for (path, l) in loaded {
+        let l = l?;
+        let scene = &l.scene;
+        let (w, h, spp) = (scene.width, scene.height, scene.render.samples_per_pixel);
+        progress.scene(&scene.name, &format!("{w}x{h}, {spp} spp"));
+        if cfg.judge_only {
+            let file = path.display().to_string();
+            let r = judge_scene(cfg, &cfg.conditions, &l, file, &progress)?;
+            progress.println(&report::corpus_line(&r));
+            study.judged.push(r);
+        } else {
+            let r = bench_scene(&l, cfg, &progress)?;
+            progress.println(&report::scene_table(&r));
+            study.scenes.push(r);
+        }
         progress.scene_done();
-        study.scenes.push(r);
     }
     if let Some(c) = &cfg.corpus {
         study.corpus = run_corpus(cfg, c, &progress)?;
@@ -267,6 +326,72 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
     report::write(cfg, &study, &peer)?;
     progress.finish();
     Ok(study)
+}
+
+/// The public scenes of `dir`: every `NAME/scene-v4.pbrt`, sorted by NAME.
+fn public_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read the public scene folder {}", dir.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.path().join("scene-v4.pbrt"))
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    anyhow::ensure!(
+        !files.is_empty(),
+        "no NAME/scene-v4.pbrt in the public scene folder {}",
+        dir.display()
+    );
+    Ok(files)
+}
+
+/// Long side of a public scene in the study, pixels: the size people render.
+pub const PUBLIC_SIDE: u32 = 512;
+/// A public scene's reference should take about this long here, seconds ([`public_samples`]).
+pub const PUBLIC_REFERENCE_S: f64 = 8.0;
+
+/// A public scene at [`PUBLIC_SIDE`] on its long side, with [`public_samples`] per pixel
+/// (its file's samples are for another renderer and another machine).
+fn load_public(path: &Path, cfg: &BenchConfig) -> anyhow::Result<Loaded> {
+    let as_written = BenchConfig {
+        spp_factor: 1,
+        min_side: None,
+        quick: false,
+        ..cfg.clone()
+    };
+    let mut l = load(path, &as_written)?;
+    set_long_side(&mut l.scene, PUBLIC_SIDE);
+    let tracer = PathTracer::new(&l.scene);
+    let cancel = CancelToken::new();
+    let seed = l.scene.render.seed;
+    let pilot =
+        || tracer::render_reference_with(&tracer, Some((PILOT_SPP, seed)), &cancel, &|_, _| {});
+    pilot()?;
+    let t = Instant::now();
+    pilot()?;
+    let per_sample_ms = ms(t) / f64::from(PILOT_SPP);
+    l.scene.render.samples_per_pixel = public_samples(per_sample_ms, PUBLIC_REFERENCE_S);
+    Ok(l)
+}
+
+/// Samples per pixel of the pilot renders (the first warms the caches, the second is timed).
+const PILOT_SPP: u32 = 2;
+
+/// Samples per pixel for a reference of about `target_s` when one sample per pixel takes
+/// `per_sample_ms`: the largest power of two within it (so a noisy pilot rarely changes
+/// the choice, and the truth's cache stays valid), from 16 to 4096: fewer samples than 16
+/// is no reference anyone renders (and the adaptive loop's first pass alone costs more).
+#[must_use]
+pub fn public_samples(per_sample_ms: f64, target_s: f64) -> u32 {
+    let fit = target_s * 1e3 / per_sample_ms.max(1e-9);
+    let pow = fit.max(1.0).log2().floor().clamp(4.0, 12.0);
+    1 << (pow as u32)
+}
+
+/// Scales the image so its long side is `side` pixels.
+fn set_long_side(scene: &mut Scene, side: u32) {
+    shrink(scene, side);
+    grow(scene, side);
 }
 
 /// The `*.json` files of the scene folder, sorted, then the imported scenes of its
@@ -307,7 +432,10 @@ fn run_corpus(
     let dir = cfg.out_dir.join("corpus");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let mut results = Vec::new();
-    for (k, generated) in corpus::generate(c.scenes, c.seed).into_iter().enumerate() {
+    for (k, generated) in corpus::generate_in(c.scenes, c.seed, c.profile)
+        .into_iter()
+        .enumerate()
+    {
         let file = format!("corpus/{}.json", generated.name);
         let path = cfg.out_dir.join(&file);
         std::fs::write(&path, &generated.document)
@@ -327,7 +455,12 @@ fn run_corpus(
                 s.display.exposure
             ),
         );
-        let r = judge_corpus_scene(cfg, c, &loaded, file, progress)?;
+        let declared = loaded.scene.display.pixels_per_degree;
+        let mut ppds = vec![declared];
+        if c.at_conditions {
+            ppds.extend(cfg.conditions.iter().filter(|&&p| p != declared));
+        }
+        let r = judge_scene(cfg, &ppds, &loaded, file, progress)?;
         progress.println(&report::corpus_line(&r));
         progress.scene_done();
         results.push(r);
@@ -335,11 +468,10 @@ fn run_corpus(
     Ok(results)
 }
 
-/// One corpus scene against its truth, at its declared ppd (and the standard conditions
-/// if asked).
-fn judge_corpus_scene(
+/// One scene against its truth at `ppds` (a corpus scene: its declared ppd first).
+fn judge_scene(
     cfg: &BenchConfig,
-    c: &CorpusConfig,
+    ppds: &[f32],
     loaded: &Loaded,
     file: String,
     progress: &Progress,
@@ -347,27 +479,37 @@ fn judge_corpus_scene(
     let s = &loaded.scene;
     let cancel = CancelToken::new();
     let tracer = PathTracer::new(s);
-    progress.stage("the converged render and the independent reference");
-    let truth = truth::converged(s, &loaded.document, &tracer, &cfg.cache_dir, &cancel)?;
+    progress.stage("the independent reference and the converged render");
+    let t = Instant::now();
     let judge = independent_reference(&tracer, s, &cancel)?;
+    let check = truth::TruthCheck {
+        reference: &judge,
+        reference_ms: ms(t),
+        ppds,
+        cap_ms: cfg.truth_cap_s * 1e3,
+    };
+    let truth = truth::converged(
+        s,
+        &loaded.document,
+        &tracer,
+        &cfg.cache_dir,
+        &check,
+        &cancel,
+    )?;
     let ids = tracer::object_id_map(&tracer);
     let case = Case {
         scene: s,
         tracer: &tracer,
         truth: &truth.image,
+        truth_halves: (&truth.halves.0, &truth.halves.1),
         judge: &judge,
         ids: &ids,
-        runs: timing_runs(cfg),
+        runs: cfg.runs,
         cancel: &cancel,
     };
-    let declared = s.display.pixels_per_degree;
-    let mut ppds = vec![declared];
-    if c.at_conditions {
-        ppds.extend(cfg.conditions.iter().filter(|&&p| p != declared));
-    }
     let conditions = ppds
-        .into_iter()
-        .map(|ppd| {
+        .iter()
+        .map(|&ppd| {
             progress.stage(&format!("at {ppd} ppd"));
             judge::at_condition(&case, ppd, &cfg.out_dir)
         })
@@ -379,8 +521,9 @@ fn judge_corpus_scene(
         height: s.height,
         spp: s.render.samples_per_pixel,
         exposure: s.display.exposure,
-        declared_ppd: declared,
+        declared_ppd: s.display.pixels_per_degree,
         conditions,
+        truth: truth.info,
     })
 }
 
@@ -497,14 +640,6 @@ fn independent_reference(
     )?)
 }
 
-fn timing_runs(cfg: &BenchConfig) -> usize {
-    if cfg.quick {
-        1
-    } else {
-        TIMING_RUNS
-    }
-}
-
 /// One bundled scene: the reference and the loop timed, the peers, the judges, the images.
 fn bench_scene(
     loaded: &Loaded,
@@ -518,7 +653,7 @@ fn bench_scene(
         tracer: &tracer,
         cancel: &cancel,
     };
-    let runs = timing_runs(cfg);
+    let runs = cfg.runs;
     let timed = timed_runs(&renders, scene, runs, progress)?;
     let time_split = time_split(
         &tracer,
@@ -549,6 +684,7 @@ fn bench_scene(
         scene,
         tracer: &tracer,
         truth: &rows.truth.image,
+        truth_halves: (&rows.truth.halves.0, &rows.truth.halves.1),
         judge: &rows.judge,
         ids: &ids,
         runs,
@@ -582,6 +718,7 @@ fn bench_scene(
         exposure_check,
         time_split,
         targets,
+        truth: rows.truth.info.clone(),
     })
 }
 
@@ -681,7 +818,21 @@ impl<'a> Rows<'a> {
             scene.display.exposure,
             scene.display.pixels_per_degree,
         );
-        let truth = truth::converged(scene, &loaded.document, tracer, &cfg.cache_dir, cancel)?;
+        let ppds = cfg.truth_ppds();
+        let check = truth::TruthCheck {
+            reference: &timed.reference,
+            reference_ms: timed.reference_ms,
+            ppds: &ppds,
+            cap_ms: cfg.truth_cap_s * 1e3,
+        };
+        let truth = truth::converged(
+            scene,
+            &loaded.document,
+            tracer,
+            &cfg.cache_dir,
+            &check,
+            cancel,
+        )?;
         let model = VisionModel::new(display_model(scene), scene.width, scene.height);
         let judge_stack = model.decompose(&judge)?;
         Ok(Self {
@@ -987,7 +1138,7 @@ pub(crate) fn ms(t: Instant) -> f64 {
 }
 
 /// Runs of the reference and the progressive render whose median times make the ratio.
-const TIMING_RUNS: usize = 3;
+pub(crate) const TIMING_RUNS: usize = 3;
 
 /// The median of a non-empty list (the upper middle of an even one); the study's and the
 /// `loop_cost` benchmark's.
@@ -999,6 +1150,29 @@ pub fn median(v: &mut [f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_public_scene_gets_the_largest_power_of_two_that_fits_its_reference_time() {
+        assert_eq!(public_samples(1.0, 4.0), 2048, "4000 fit");
+        assert_eq!(public_samples(10.0, 4.0), 256, "400 fit");
+        assert_eq!(public_samples(1e3, 4.0), 16, "4 fit: 16");
+        assert_eq!(public_samples(1e-6, 4.0), 4096, "at most 4096");
+        assert_eq!(public_samples(0.0, 4.0), 4096, "a pilot too fast to time");
+    }
+
+    #[test]
+    fn a_long_side_is_set_both_ways_keeping_the_aspect() {
+        let doc = r#"{"version": 1, "image": {"width": 1280, "height": 720},
+            "camera": {"position": [0, 0, -3], "look_at": [0, 0, 0], "fov_y": 40},
+            "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+            "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "w"}]}"#;
+        let mut s = parse_scene(doc, &SceneOrigin::Request, &Limits::command_line()).unwrap();
+        set_long_side(&mut s, PUBLIC_SIDE);
+        assert_eq!((s.width, s.height), (512, 288));
+        (s.width, s.height) = (100, 200);
+        set_long_side(&mut s, PUBLIC_SIDE);
+        assert_eq!((s.width, s.height), (256, 512));
+    }
 
     /// `--spp-factor` scales the samples and refuses a product over either command-line
     /// limit (samples per pixel, samples per render), naming the file and the factor.

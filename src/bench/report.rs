@@ -2,12 +2,14 @@
 //! tables the README quotes), `results.json` (raw numbers) and `tradeoff.svg` (Q against
 //! time over the t0 sweep, per scene and condition).
 
+use super::corpus::Profile;
 use super::judge::{Condition, SlowBecause, SweepPoint, Q_TARGET, TIME_TARGET};
 use super::objects::{MIN_COVERAGE, MIN_TOLERANCE, REFERENCE_FACTOR};
 use super::peer::PeerResult;
-use super::truth::TRUTH_SPP_FACTOR;
+use super::truth::{self_error_share, TruthInfo, SELF_ERROR_SHARE, TRUTH_SPP_FACTOR};
 use super::{median, BenchConfig, CorpusResult, SceneResult, Study, TargetCheck, TimeSplit};
 use anyhow::Context;
+use clap::ValueEnum as _;
 use plotters::prelude::*;
 use std::fmt::Write as _;
 
@@ -113,18 +115,20 @@ fn time_split_words(ts: &TimeSplit) -> String {
 #[must_use]
 pub fn conditions_table(conditions: &[Condition]) -> String {
     let mut s = String::from(
-        "| ppd | Q (FLIP vs truth: progressive / reference) | × reference time | pixels traced \
+        "| ppd | Q (FLIP vs truth: progressive / reference) | truth self-error (÷ reference's) \
+         | × reference time | pixels traced \
          | Q ≤ 1 at ≤ 0.5× | vs noise floor | worst object (error / allowed) | contact sheet |\n\
-         |---:|---:|---:|---:|---|---:|---:|---|\n",
+         |---:|---:|---:|---:|---:|---|---:|---:|---|\n",
     );
     for c in conditions {
         let _ = writeln!(
             s,
-            "| {} | {:.2} ({:.4} / {:.4}) | {} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
+            "| {} | {:.2} ({:.4} / {:.4}) | {} | {} | {:.1}% | {} | {:.2}× | {} | [sheet]({}) |",
             c.ppd,
             c.q,
             c.progressive_flip,
             c.reference_flip,
+            self_cell(c),
             time_cell(c),
             c.pixel_fraction * 100.0,
             yes_no(c.passes()),
@@ -240,6 +244,110 @@ fn object_cell(c: &Condition) -> String {
     )
 }
 
+/// The truth's own error and its share of the reference's.
+fn self_cell(c: &Condition) -> String {
+    format!(
+        "{:.4} ({:.2})",
+        c.truth_self_flip,
+        self_error_share(c.truth_self_flip, c.reference_flip)
+    )
+}
+
+/// How converged a scene's truth is, in one sentence.
+#[must_use]
+pub fn truth_line(t: &TruthInfo) -> String {
+    let capped = if t.capped {
+        format!(
+            "; **capped** at {:.0} s: its own error is above {SELF_ERROR_SHARE} of the \
+             reference's at some condition",
+            t.cap_s
+        )
+    } else {
+        String::new()
+    };
+    format!("Truth: {} spp ({}× the scene's){capped}.", t.spp, t.factor)
+}
+
+/// `adaptive` against uniform + OIDN and the truth's own error, one row per scene and
+/// condition, then the medians per condition.
+#[must_use]
+pub fn judged_table(results: &[CorpusResult]) -> String {
+    let mut s = String::from(
+        "| scene | size, spp | truth spp | ppd | reference FLIP | truth self-error (÷ reference's) \
+         | adaptive Q at × time | adaptive ÷ uniform + OIDN | uniform + OIDN FLIP (spp) \
+         | reference + OIDN FLIP | progressive Q at × time |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in results {
+        for c in &r.conditions {
+            let Some(d) = &c.denoised else { continue };
+            let capped = if r.truth.capped { " (capped)" } else { "" };
+            let _ = writeln!(
+                s,
+                "| {} | {}x{}, {} | {}{capped} | {} | {:.4} | {} | {:.2} at {:.2}× | {:.2} \
+                 | {:.4} ({}) | {:.4} | {:.2} at {:.2}× |",
+                r.scene,
+                r.width,
+                r.height,
+                r.spp,
+                r.truth.spp,
+                c.ppd,
+                c.reference_flip,
+                self_cell(c),
+                d.q,
+                d.time_ratio,
+                d.vs_uniform_oidn,
+                d.uniform_oidn_flip,
+                d.uniform_oidn_spp,
+                d.reference_oidn_flip,
+                c.q,
+                c.time_ratio
+            );
+        }
+    }
+    s.push_str(&judged_medians(results));
+    s
+}
+
+/// Per condition: the medians over the scenes of adaptive's Q, time ratio and ratio to
+/// uniform + OIDN, and how many truths were within the rule.
+fn judged_medians(results: &[CorpusResult]) -> String {
+    let mut ppds: Vec<f32> = results
+        .iter()
+        .flat_map(|r| r.conditions.iter().map(|c| c.ppd))
+        .collect();
+    ppds.sort_by(f32::total_cmp);
+    ppds.dedup();
+    let mut s = String::from(
+        "\n| ppd | scenes | median adaptive Q | median × time | median adaptive ÷ uniform + OIDN \
+         | truths within the rule |\n|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for ppd in ppds {
+        let conds: Vec<&Condition> = results
+            .iter()
+            .flat_map(|r| r.conditions.iter().filter(|c| c.ppd == ppd))
+            .collect();
+        let rows: Vec<_> = conds.iter().filter_map(|c| c.denoised.as_ref()).collect();
+        let mut q: Vec<f64> = rows.iter().map(|d| d.q).collect();
+        let mut t: Vec<f64> = rows.iter().map(|d| d.time_ratio).collect();
+        let mut v: Vec<f64> = rows.iter().map(|d| d.vs_uniform_oidn).collect();
+        let within = conds
+            .iter()
+            .filter(|c| self_error_share(c.truth_self_flip, c.reference_flip) <= SELF_ERROR_SHARE)
+            .count();
+        let _ = writeln!(
+            s,
+            "| {ppd} | {} | {:.2} | {:.2} | {:.2} | {within} of {} |",
+            rows.len(),
+            median(&mut q),
+            median(&mut t),
+            median(&mut v),
+            conds.len()
+        );
+    }
+    s
+}
+
 /// One corpus scene, one line per condition (the progress log).
 #[must_use]
 pub fn corpus_line(r: &CorpusResult) -> String {
@@ -247,14 +355,19 @@ pub fn corpus_line(r: &CorpusResult) -> String {
         .iter()
         .map(|c| {
             format!(
-                "  {} at {} ppd: Q {:.2}, {:.2}× time, {:.1}% px, objects {:.2} {}",
+                "  {} at {} ppd: Q {:.2}, {:.2}× time, {:.1}% px, objects {:.2} {}; \
+                 adaptive Q {:.2} at {:.2}×, ÷ uniform + OIDN {:.2}; truth self {}",
                 r.scene,
                 c.ppd,
                 c.q,
                 c.time_ratio,
                 c.pixel_fraction * 100.0,
                 c.worst_object_ratio,
-                if c.passes() { "pass" } else { "FAIL" }
+                if c.passes() { "pass" } else { "FAIL" },
+                c.denoised.as_ref().map_or(f64::NAN, |d| d.q),
+                c.denoised.as_ref().map_or(f64::NAN, |d| d.time_ratio),
+                c.denoised.as_ref().map_or(f64::NAN, |d| d.vs_uniform_oidn),
+                self_cell(c)
             )
         })
         .collect::<Vec<_>>()
@@ -576,8 +689,36 @@ fn flags(cfg: &BenchConfig) -> String {
             f.push_str(" --corpus-at-conditions");
         }
     }
+    if let Some(c) = cfg.corpus.as_ref().filter(|c| c.profile != Profile::Small) {
+        let name = c
+            .profile
+            .to_possible_value()
+            .map(|v| v.get_name().to_owned());
+        let _ = write!(f, " --corpus-profile {}", name.unwrap_or_default());
+    }
     if !cfg.bundled {
         f.push_str(" --corpus-only");
+    }
+    if let Some(side) = cfg.min_side {
+        let _ = write!(f, " --min-side {side}");
+    }
+    if let Some(dir) = &cfg.public_dir {
+        let _ = write!(f, " --public {}", dir.display());
+    }
+    if cfg.judge_only {
+        f.push_str(" --judge-only");
+    }
+    let default_runs = if cfg.quick { 1 } else { super::TIMING_RUNS };
+    if cfg.runs != default_runs {
+        let _ = write!(f, " --runs {}", cfg.runs);
+    }
+    let default_cap = if cfg.quick {
+        super::QUICK_TRUTH_CAP_S
+    } else {
+        super::TRUTH_CAP_S
+    };
+    if cfg.truth_cap_s != default_cap {
+        let _ = write!(f, " --truth-cap {}", cfg.truth_cap_s);
     }
     f
 }
@@ -597,6 +738,7 @@ pub fn write(
         "sweep_checks": sweep_checks(&study.scenes, progressive_sweep),
         "adaptive_sweep_checks": sweep_checks(&study.scenes, adaptive_sweep),
         "scenes": study.scenes,
+        "judged": study.judged,
         "corpus": study.corpus,
         "peer": peer.as_ref().ok(),
         "peer_error": peer.as_ref().err(),
@@ -638,20 +780,31 @@ fn markdown(
         for r in &study.scenes {
             let _ = writeln!(
                 md,
-                "### {}\n\n{}\n{}",
+                "### {}\n\n{}\n\n{}\n{}",
                 r.scene,
+                truth_line(&r.truth),
                 conditions_table(&r.conditions),
                 denoised_table(&r.conditions)
             );
         }
         md.push_str(&sweep_section(study));
     }
+    if !study.judged.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Scenes judged at the conditions ({} scenes)\n\n{}\n{}",
+            study.judged.len(),
+            corpus_table(&study.judged),
+            judged_table(&study.judged)
+        );
+    }
     if !study.corpus.is_empty() {
         let _ = writeln!(
             md,
-            "## Corpus ({} generated scenes; documents in `corpus/`)\n\n{}",
+            "## Corpus ({} generated scenes; documents in `corpus/`)\n\n{}\n{}",
             study.corpus.len(),
-            corpus_table(&study.corpus)
+            corpus_table(&study.corpus),
+            judged_table(&study.corpus)
         );
     }
     if !study.scenes.is_empty() {
@@ -674,8 +827,8 @@ fn every_method_section(cfg: &BenchConfig, study: &Study) -> String {
          independent reference (same scene and spp, another seed); the reference row's \
          FLIP is that noise floor. Guo stops at the progressive run's ray count (noise \
          twins included); uniform gets the progressive run's wall time. \"FLIP vs \
-         converged\" judges the same images against the truth ({TRUTH_SPP_FACTOR}× the \
-         samples, another seed). The reference and progressive times are medians of 3 \
+         converged\" judges the same images against the truth (at least {TRUTH_SPP_FACTOR}× the \
+         samples, other seeds). The reference and progressive times are medians of 3 \
          alternating runs (one run in `--quick`); every other cell is one render. All in \
          one run on this machine: the ratios measured side by side are the result, not \
          the absolute times.\n"
@@ -700,8 +853,12 @@ fn how_judged(cfg: &BenchConfig) -> String {
     let mut judge = String::new();
     let _ = writeln!(
         judge,
-        "\n## How it is judged, exactly\n\nTruth = the scene traced with {TRUTH_SPP_FACTOR}× its samples per \
-         pixel and another seed (cached in `{}`). At each declared viewing condition (the \
+        "\n## How it is judged, exactly\n\nTruth = the mean of two halves, each the scene \
+         traced with {}× its samples per pixel and other seeds (cached in `{}`); FLIP between \
+         the halves is the truth's own error (\"truth self\"), and where it is above \
+         {SELF_ERROR_SHARE} × FLIP(reference, truth) at a condition, the truth is given twice \
+         the samples, until it is not or its estimated time would pass {:.0} s (then \
+         \"capped\"). At each declared viewing condition (the \
          scene's `display.pixels_per_degree` set to that value for the progressive render and \
          for FLIP), Q = FLIP(progressive, truth) / FLIP(reference, truth): Q ≤ 1 means the \
          progressive picture is at least as close to the truth as the reference. Times are \
@@ -716,8 +873,10 @@ fn how_judged(cfg: &BenchConfig) -> String {
          (magma: black none, yellow most). The t0 sweep is monotone when, as t0 grows, time \
          never rises by more than {SWEEP_TIME_SLACK}× and Q never falls by more than \
          {SWEEP_Q_SLACK} (one run per point).\n",
+        TRUTH_SPP_FACTOR / 2,
         cfg.cache_dir.display(),
-        if cfg.quick { 1 } else { super::TIMING_RUNS },
+        cfg.truth_cap_s,
+        cfg.runs,
         MIN_COVERAGE * 100.0,
         MIN_TOLERANCE * 100.0,
     );

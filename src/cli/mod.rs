@@ -220,9 +220,38 @@ pub struct BenchArgs {
     /// Judge the corpus alone (skip the scenes of --scenes).
     #[arg(long, requires = "corpus")]
     pub corpus_only: bool,
+    /// The corpus's sizes and samples: `small` (references under a second; what the tests
+    /// run) or `users` (256–1024 px, 64–1024 spp, references of about 1–20 s).
+    #[arg(long, value_enum, default_value_t, requires = "corpus")]
+    pub corpus_profile: crate::bench::corpus::Profile,
+    /// Also study the public scenes of DIR (each NAME/scene-v4.pbrt, e.g. the shared
+    /// scenes-public folder) at 512 px on the long side, with the samples per pixel that
+    /// make a reference of about 8 s here (16 at least). Not run with --quick.
+    #[arg(long, value_name = "DIR")]
+    pub public: Option<PathBuf>,
+    /// Judge every scene at the --ppd conditions only (truth, Q and time, adaptive against
+    /// uniform + OIDN), without the per-method table, the time split and the t0 sweeps.
+    #[arg(long)]
+    pub judge_only: bool,
+    /// Alternating timed runs whose medians make each time ratio (default 3; 1 with --quick).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub runs: Option<u32>,
+    /// The longest one scene's truth may take to trace, seconds (default 300; 20 with
+    /// --quick): the truth's samples double while its own error is above a quarter of the
+    /// reference's, within this.
+    #[arg(long, value_name = "SECONDS", value_parser = parse_seconds)]
+    pub truth_cap: Option<f64>,
     /// Where converged renders are cached (default OUT/cache).
     #[arg(long)]
     pub cache: Option<PathBuf>,
+}
+
+/// Seconds: a finite number in (0, 1e6].
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
+        _ => Err(format!("{s:?} is not a number of seconds in (0, 1000000]")),
+    }
 }
 
 /// Pixels per degree: a finite number in (0, 1000] (1000 is far beyond any display seen
@@ -429,9 +458,18 @@ fn bench(a: &BenchArgs) -> anyhow::Result<()> {
         cfg.cache_dir.clone_from(dir);
     }
     cfg.bundled = !a.corpus_only;
+    cfg.public_dir.clone_from(&a.public);
+    cfg.judge_only = a.judge_only;
+    if let Some(r) = a.runs {
+        cfg.runs = r as usize;
+    }
+    if let Some(c) = a.truth_cap {
+        cfg.truth_cap_s = c;
+    }
     cfg.corpus = a.corpus.map(|n| crate::bench::CorpusConfig {
         scenes: usize::try_from(n).unwrap_or(usize::MAX),
         seed: a.seed,
+        profile: a.corpus_profile,
         at_conditions: a.corpus_at_conditions,
     });
     let study = crate::bench::run(&cfg)?;
@@ -467,6 +505,15 @@ mod tests {
         assert_eq!(parse_ppd("1000"), Ok(1000.0));
         for bad in ["0", "-5", "NaN", "inf", "1000.5", "sixty", ""] {
             assert!(parse_ppd(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_truth_cap_is_a_positive_finite_number_of_seconds() {
+        assert_eq!(parse_seconds("300"), Ok(300.0));
+        assert_eq!(parse_seconds(" 0.5"), Ok(0.5));
+        for bad in ["0", "-1", "NaN", "inf", "1e7", "soon", ""] {
+            assert!(parse_seconds(bad).is_err(), "{bad}");
         }
     }
 
