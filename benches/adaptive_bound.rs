@@ -209,16 +209,14 @@ fn spread(w: u32, h: u32, tile_error: &[f64], alpha: f64, n: u32) -> Vec<u32> {
 /// The truth's two cached halves of independent seeds and FLIP between them (the mean's
 /// own error is about that over √2).
 fn truth_of(loaded: &Loaded, o: &Options) -> ((LinearImage, LinearImage), f64) {
-    let mut s = loaded.scene.clone();
-    s.render.samples_per_pixel = (o.truth_spp / (2 * truth::TRUTH_SPP_FACTOR)).max(1);
+    let s = &loaded.scene;
+    let half_spp = (o.truth_spp / 2).max(1);
     let key = format!("{}\nhalves", loaded.document);
     let half = |seed: u64| {
-        let mut h = s.clone();
-        h.render.seed = seed;
-        let t = PathTracer::new(&h);
-        truth::converged(&h, &key, &t, &o.cache, &CancelToken::new())
+        let t = PathTracer::new(s);
+        truth::cached_render(s, &key, &t, &o.cache, (half_spp, seed), &CancelToken::new())
             .expect("truth")
-            .image
+            .0
     };
     let (a, b) = (
         half(s.render.seed ^ 0x1234_5678),
