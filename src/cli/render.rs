@@ -60,8 +60,9 @@ pub struct RenderArgs {
     /// Override `progressive.t0` (JND): a triangle whose distance is below it is final,
     /// and the lower it is (down to 0.25), the more the interpolation averages away noise.
     /// Higher is faster and less accurate; 0 traces every pixel (the reference exactly).
-    /// Adaptive mode: the visible error (JND) at which a tile needs no more samples; 0
-    /// gives every pixel all its samples (the reference exactly without the denoiser).
+    /// Adaptive mode: the visible error (JND) at which a tile needs no more samples (where
+    /// the reference itself would show more, t0 × half of the reference's); 0 gives every
+    /// pixel all its samples (the reference exactly without the denoiser).
     #[arg(long, value_parser = parse_t0)]
     pub t0: Option<f32>,
     /// Progressive and Guo modes: stop after tracing this many pixels, given as a count

@@ -22,7 +22,8 @@ pub struct Tile {
     pub pixels: u32,
     /// Samples each of its pixels has (the fewest among them).
     pub samples: u32,
-    /// Predicted visible error (JND, pooled over the tile).
+    /// Predicted visible error pooled over the tile, in units of what the tile may keep
+    /// (1 JND, or a share of the reference's own visible error where that is more).
     pub visible: f32,
     /// Rays per sample (what a sample there costs); 1 when unknown.
     pub cost: f32,

@@ -123,9 +123,9 @@ pub fn visible_error(
 /// The error a person would see in the reference (every pixel at `max_spp`, not
 /// denoised), predicted per pixel from the raw halves: their half-buffer error, scaled by
 /// √(n / `max_spp`) at a pixel of n samples (Monte Carlo error falls as 1/√n), judged as
-/// [`visible_error`] judges the picture's. The adaptive loop never asks a tile for less
-/// error than the full render would leave there: the promise is a picture no further from
-/// the truth than the reference.
+/// [`visible_error`] judges the picture's. The adaptive loop does not ask a tile for much
+/// less error than the full render would leave there ([`super::REFERENCE_SHARE`] of it):
+/// the promise is a picture no further from the truth than the reference.
 #[must_use]
 pub fn reference_visible(
     model: &VisionModel,

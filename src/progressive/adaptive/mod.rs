@@ -5,7 +5,8 @@
 //! independent half images ([`estimate`]), and the vision model turns that error into
 //! what a person would see at the scene's display and viewing distance. The next pass
 //! spends samples where that visible error per unit of cost is largest ([`allocate`]);
-//! the render stops when no tile shows more than t0 JND for two passes in a row, when
+//! the render stops when no tile shows more than t0 JND (or, where the reference itself
+//! would show more, t0 × [`REFERENCE_SHARE`] of the reference's) for two passes in a row, when
 //! every pixel has the scene's `samples_per_pixel`, or at the time or sample budget.
 //!
 //! With t0 = 0 every pixel gets `samples_per_pixel` paths, summed in the reference's own
