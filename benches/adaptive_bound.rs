@@ -50,7 +50,7 @@ use glimpse::scene::{RenderMode, Scene};
 use glimpse::tracer::{self, aux::AuxMaps, PathTracer};
 use glimpse::vision::VisionModel;
 
-const TILE: u32 = 8;
+use glimpse::progressive::adaptive::TILE;
 /// Seed of the truth's second half, against the scene's own (any other).
 const HALF_SEED: u64 = 0x5bd1_e995;
 /// The tile-error exponents of the oracle rule.
