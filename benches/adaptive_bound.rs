@@ -44,13 +44,13 @@ use glimpse::denoise::{Aux, Denoiser, Quality};
 use glimpse::metric::MetricParams;
 use glimpse::progressive::adaptive::estimate::{self, Filter};
 use glimpse::progressive::adaptive::pixels::Pixels;
+use glimpse::progressive::adaptive::TILE;
 use glimpse::progressive::{self, denoise_input_scale, display_model, RenderOptions};
 use glimpse::raster::{Image, LinearImage, Rgb};
 use glimpse::scene::{RenderMode, Scene};
 use glimpse::tracer::{self, aux::AuxMaps, PathTracer};
 use glimpse::vision::VisionModel;
 
-use glimpse::progressive::adaptive::TILE;
 /// Seed of the truth's second half, against the scene's own (any other).
 const HALF_SEED: u64 = 0x5bd1_e995;
 /// The tile-error exponents of the oracle rule.
