@@ -1,9 +1,9 @@
-//! The Sobol sampler's error beside the independent sampler's, in one run: equal samples
+//! The Sobol samplers' error beside the independent sampler's, in one run: equal samples
 //! (16, 32 and 64 per pixel), the same seed, each judged by LDR-FLIP at the scene's
 //! declared pixels per degree and exposure against a converged truth, on every bundled
-//! scene (scenes/*.json) and on a generated corpus (src/bench/corpus.rs). The targets:
-//! sobol/independent ≤ 0.8 on every bundled scene and on the corpus median, at
-//! every sample count, and no scene worse by more than 2 %.
+//! scene (scenes/*.json) and on a generated corpus (src/bench/corpus.rs). The targets,
+//! for each sampler against the independent one: ≤ 0.8 on every bundled scene and on
+//! the corpus median, at every sample count, and no scene worse by more than 2 %.
 //!
 //! The truth is two renders of independent seeds (Sobol, half the truth's samples each,
 //! cached like `glimpse bench`'s truths); FLIP between the two halves is printed beside
@@ -15,7 +15,9 @@
 //! - `SAMPLER_MIN_SIDE=PX`: every scene scaled up to PX on its long side, as
 //!   `glimpse bench --min-side` does (default: as written).
 //! - `SAMPLER_SPP=16,32,64`: the sample counts compared.
-//! - `SAMPLER_CROPS=DIR`: side-by-side crops (independent | sobol | truth, at the first
+//! - `SAMPLER_KINDS=independent,sobol,zsobol`: the samplers compared, the first the
+//!   baseline of every ratio.
+//! - `SAMPLER_CROPS=DIR`: side-by-side crops (each sampler, then the truth, at the first
 //!   count) of every bundled scene written there as PNG.
 //! - `SAMPLER_TRUTH=N`: the truth's samples per pixel (default 1024, even: two halves).
 //! - `SAMPLER_CACHE=DIR`: where truths are cached (default target/sampler-truth).
@@ -37,6 +39,7 @@ struct Options {
     bundled: bool,
     min_side: Option<u32>,
     spp: Vec<u32>,
+    kinds: Vec<SamplerKind>,
     crops: Option<PathBuf>,
     cache: PathBuf,
     truth_spp: u32,
@@ -64,22 +67,33 @@ fn options() -> Options {
             .split(',')
             .map(|s| s.trim().parse().expect("SAMPLER_SPP"))
             .collect(),
+        kinds: std::env::var("SAMPLER_KINDS")
+            .unwrap_or_else(|_| "independent,sobol,zsobol".into())
+            .split(',')
+            .map(|k| {
+                serde_json::from_value(serde_json::Value::String(k.trim().into()))
+                    .unwrap_or_else(|_| panic!("SAMPLER_KINDS: {k} is not a sampler"))
+            })
+            .collect(),
         crops: std::env::var("SAMPLER_CROPS").ok().map(PathBuf::from),
         cache: env_or("SAMPLER_CACHE", PathBuf::from("target/sampler-truth")),
         truth_spp: env_or("SAMPLER_TRUTH", 1024),
     }
 }
 
-/// One scene's errors: per sample count (independent, sobol), and the truth's own.
+/// One scene's errors: per sample count, one per sampler; and the truth's own.
 struct SceneErrors {
     name: String,
-    flips: Vec<(f64, f64)>,
+    flips: Vec<Vec<f64>>,
     truth_halves: f64,
 }
 
 fn render(scene: &Scene, kind: SamplerKind, spp: u32, seed: u64) -> LinearImage {
     let mut s = scene.clone();
     s.render.sampler = kind;
+    // As a user declaring `spp` gets it: the z-ordered sampler lays its blocks out for
+    // the declared count.
+    s.render.samples_per_pixel = spp;
     let t = PathTracer::new(&s);
     tracer::render_reference_with(&t, Some((spp, seed)), &CancelToken::new(), &|_, _| {})
         .expect("never cancelled")
@@ -114,13 +128,19 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     let d = &scene.display;
     let mut flips = Vec::new();
     for (k, &spp) in o.spp.iter().enumerate() {
-        let ind = render(scene, SamplerKind::Independent, spp, scene.render.seed);
-        let sob = render(scene, SamplerKind::Sobol, spp, scene.render.seed);
-        let fi = flip::flip(&truth, &ind, d.exposure, d.pixels_per_degree).mean;
-        let fs = flip::flip(&truth, &sob, d.exposure, d.pixels_per_degree).mean;
-        flips.push((fi, fs));
+        let imgs: Vec<LinearImage> = o
+            .kinds
+            .iter()
+            .map(|&kind| render(scene, kind, spp, scene.render.seed))
+            .collect();
+        flips.push(
+            imgs.iter()
+                .map(|img| flip::flip(&truth, img, d.exposure, d.pixels_per_degree).mean)
+                .collect(),
+        );
         if let (0, Some(dir)) = (k, crops) {
-            write_crops(dir, &scene.name, spp, [&ind, &sob, &truth], d.exposure);
+            let shown: Vec<&LinearImage> = imgs.iter().chain([&truth]).collect();
+            write_crops(dir, &scene.name, spp, &shown, d.exposure);
         }
     }
     SceneErrors {
@@ -132,7 +152,7 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
 
 /// `dir/NAME-SPPspp.png`: the central crop (up to 160 px square) of each image side by
 /// side, scaled 3× (nearest) so the grain is visible.
-fn write_crops(dir: &Path, name: &str, spp: u32, imgs: [&LinearImage; 3], exposure: f32) {
+fn write_crops(dir: &Path, name: &str, spp: u32, imgs: &[&LinearImage], exposure: f32) {
     const SIDE: u32 = 160;
     const ZOOM: u32 = 3;
     let (w, h) = (imgs[0].width(), imgs[0].height());
@@ -140,7 +160,8 @@ fn write_crops(dir: &Path, name: &str, spp: u32, imgs: [&LinearImage; 3], exposu
     let (x0, y0) = ((w - cw) / 2, (h - ch) / 2);
     let shown: Vec<_> = imgs.iter().map(|i| to_display_rgb8(i, exposure)).collect();
     let gap = 4;
-    let out_w = 3 * cw * ZOOM + 2 * gap;
+    let n = imgs.len() as u32;
+    let out_w = n * cw * ZOOM + (n - 1) * gap;
     let mut out = image::RgbImage::new(out_w, ch * ZOOM);
     for (k, img) in shown.iter().enumerate() {
         let ox = k as u32 * (cw * ZOOM + gap);
@@ -167,7 +188,11 @@ fn print_row(e: &SceneErrors, spp: &[u32]) {
         .flips
         .iter()
         .zip(spp)
-        .map(|((i, s), n)| format!("{n:>3}: {i:.4} {s:.4} ×{:.3}", s / i))
+        .map(|(f, n)| {
+            let ratios: Vec<String> = f[1..].iter().map(|x| format!("×{:.3}", x / f[0])).collect();
+            let values: Vec<String> = f.iter().map(|x| format!("{x:.4}")).collect();
+            format!("{n:>3}: {} {}", values.join(" "), ratios.join(" "))
+        })
         .collect();
     println!(
         "{:<24} {}   truth halves {:.4}",
@@ -183,10 +208,15 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 fn main() {
     let o = options();
+    let names: Vec<&str> = o.kinds.iter().map(|k| k.as_str()).collect();
     println!(
-        "sampler bench: FLIP vs truth at the declared ppd, independent then sobol, ratio \
-         sobol/independent; spp {:?}, min side {:?}, truth {} spp",
-        o.spp, o.min_side, o.truth_spp
+        "sampler bench: FLIP vs truth at the declared ppd, {}, then each ÷ {}; spp {:?}, \
+         min side {:?}, truth {} spp",
+        names.join(", "),
+        names[0],
+        o.spp,
+        o.min_side,
+        o.truth_spp
     );
     let mut files: Vec<PathBuf> = std::fs::read_dir("scenes")
         .expect("scenes/")
@@ -213,36 +243,42 @@ fn main() {
         print_row(&e, &o.spp);
         corpus_rows.push(e);
     }
-    verdict(&bundled, &corpus_rows, &o.spp);
+    verdict(&bundled, &corpus_rows, &o);
 }
 
-/// The issue's targets, checked and printed.
-fn verdict(bundled: &[SceneErrors], corpus_rows: &[SceneErrors], spp: &[u32]) {
-    let ratio = |e: &SceneErrors, k: usize| e.flips[k].1 / e.flips[k].0;
-    let mut ok = true;
-    for (k, n) in spp.iter().enumerate() {
-        let worst = bundled
-            .iter()
-            .chain(corpus_rows)
-            .map(|e| ratio(e, k))
-            .fold(0.0, f64::max);
-        let bundled_max = bundled.iter().map(|e| ratio(e, k)).fold(0.0, f64::max);
-        let corpus_median = if corpus_rows.is_empty() {
-            f64::NAN
-        } else {
-            median(corpus_rows.iter().map(|e| ratio(e, k)).collect())
-        };
-        let met =
-            bundled_max <= 0.8 && (corpus_median.is_nan() || corpus_median <= 0.8) && worst <= 1.02;
-        ok &= met;
+/// The targets, checked and printed for each sampler against the first.
+fn verdict(bundled: &[SceneErrors], corpus_rows: &[SceneErrors], o: &Options) {
+    for (j, kind) in o.kinds.iter().enumerate().skip(1) {
+        let ratio = |e: &SceneErrors, k: usize| e.flips[k][j] / e.flips[k][0];
+        let mut ok = true;
+        for (k, n) in o.spp.iter().enumerate() {
+            let worst = bundled
+                .iter()
+                .chain(corpus_rows)
+                .map(|e| ratio(e, k))
+                .fold(0.0, f64::max);
+            // NaN when no bundled scene was judged (`SAMPLER_BUNDLED=0`).
+            let bundled_max = bundled.iter().map(|e| ratio(e, k)).fold(f64::NAN, f64::max);
+            let corpus_median = if corpus_rows.is_empty() {
+                f64::NAN
+            } else {
+                median(corpus_rows.iter().map(|e| ratio(e, k)).collect())
+            };
+            let met = (bundled_max.is_nan() || bundled_max <= 0.8)
+                && (corpus_median.is_nan() || corpus_median <= 0.8)
+                && worst <= 1.02;
+            ok &= met;
+            println!(
+                "{} {n:>3} spp: bundled worst ×{bundled_max:.3}, corpus median \
+                 ×{corpus_median:.3}, worst of all ×{worst:.3}: {}",
+                kind.as_str(),
+                if met { "met" } else { "MISSED" }
+            );
+        }
         println!(
-            "{n:>3} spp: bundled worst ×{bundled_max:.3}, corpus median ×{corpus_median:.3}, \
-             worst of all ×{worst:.3}: {}",
-            if met { "met" } else { "MISSED" }
+            "{}: targets (≤ 0.8 bundled and corpus median, ≤ 1.02 everywhere): {}",
+            kind.as_str(),
+            if ok { "met" } else { "MISSED" }
         );
     }
-    println!(
-        "targets (≤ 0.8 bundled and corpus median, ≤ 1.02 everywhere): {}",
-        if ok { "met" } else { "MISSED" }
-    );
 }

@@ -35,7 +35,11 @@ fn run(s: &Scene, opts: &RenderOptions) -> (Frame, Vec<Frame>) {
 
 #[test]
 fn t0_zero_without_the_denoiser_is_the_reference_bit_for_bit() {
-    for sampler in [SamplerKind::Independent, SamplerKind::Sobol] {
+    for sampler in [
+        SamplerKind::Independent,
+        SamplerKind::Sobol,
+        SamplerKind::ZSobol,
+    ] {
         t0_zero_is_the_reference(sampler);
     }
 }
@@ -66,7 +70,11 @@ fn t0_zero_is_the_reference(sampler: SamplerKind) {
 
 #[test]
 fn the_default_t0_stops_before_every_pixel_has_every_sample() {
-    for sampler in [SamplerKind::Independent, SamplerKind::Sobol] {
+    for sampler in [
+        SamplerKind::Independent,
+        SamplerKind::Sobol,
+        SamplerKind::ZSobol,
+    ] {
         stops_before_every_sample(sampler);
     }
 }

@@ -300,6 +300,9 @@ impl SpotFalloff {
 pub enum SamplerKind {
     /// Padded Owen-scrambled Sobol (`tracer::sampler::SobolSample`).
     Sobol,
+    /// The same points in Z order across the image, its error spread as blue noise
+    /// (`tracer::sampler::SobolSample::z_ordered`).
+    ZSobol,
     /// An independent PCG32 stream per path (`tracer::rng::Rng`). The default: Sobol's
     /// gain at equal time is small and the loops' interpolated or denoised pixels do not
     /// share it (docs/design.md, "Samples").
@@ -312,6 +315,7 @@ impl SamplerKind {
     pub fn as_str(self) -> &'static str {
         match self {
             SamplerKind::Sobol => "sobol",
+            SamplerKind::ZSobol => "zsobol",
             SamplerKind::Independent => "independent",
         }
     }

@@ -622,6 +622,8 @@ pub struct PathTracer {
     seed: u64,
     /// Which numbers the paths draw (`render.sampler`).
     sampler: crate::scene::SamplerKind,
+    /// Where pixels and samples lie along the z-ordered sampler's sequence.
+    z_order: sampler::ZOrder,
     pub(crate) features: Features,
     /// Samples dropped because they were NaN or infinite (diagnostics only).
     dropped: AtomicU64,
@@ -662,6 +664,11 @@ impl PathTracer {
             samples_per_pixel: scene.render.samples_per_pixel,
             seed: scene.render.seed,
             sampler: scene.render.sampler,
+            z_order: sampler::ZOrder::new(
+                scene.width,
+                scene.height,
+                scene.render.samples_per_pixel,
+            ),
             features,
             dropped: AtomicU64::new(0),
         })
@@ -736,6 +743,10 @@ impl PathTracer {
             crate::scene::SamplerKind::Sobol => {
                 sampler::SobolSample::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
             }
+            crate::scene::SamplerKind::ZSobol => {
+                sampler::SobolSample::z_ordered(seed, p.x, p.y, sample, self.z_order)
+                    .get_2d(Dim::Camera)
+            }
             crate::scene::SamplerKind::Independent => {
                 rng::Rng::for_sample(seed, p.x, p.y, sample).get_2d(Dim::Camera)
             }
@@ -797,6 +808,11 @@ impl PathTracer {
             crate::scene::SamplerKind::Sobol => {
                 self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
                     sampler::SobolSample::for_sample(seed, p.x, p.y, i)
+                })
+            }
+            crate::scene::SamplerKind::ZSobol => {
+                self.add_paths_of::<ALBEDO, _>(p, count, acc, albedo, |i| {
+                    sampler::SobolSample::z_ordered(seed, p.x, p.y, i, self.z_order)
                 })
             }
             crate::scene::SamplerKind::Independent => {

@@ -14,6 +14,17 @@
 //!   the difference of its even and odd halves (`SampleSum::halves`), which says the
 //!   error of their mean only when the halves are independent; two halves of one net are
 //!   not (they fill each other's gaps, and their difference overstates the error).
+//! - [`SobolSample::z_ordered`]: the same points laid along one Sobol sequence for the
+//!   whole image in Morton (Z) order of the pixels (pbrt-v4's ZSobolSampler, Pharr et al.
+//!   2023 §8.7.4, after Ahmed & Wonka 2020, "Screen-Space Blue-Noise Diffusion of Monte
+//!   Carlo Sampling Error via Hierarchical Ordering of Pixels"). A pixel's samples are one
+//!   aligned block of the sequence, and each 2×2, 4×4, … block of pixels holds one aligned
+//!   block of blocks, so neighbouring pixels' samples fill each other's gaps: the error is
+//!   spread as blue noise across pixels, which a viewer's contrast sensitivity (and FLIP)
+//!   filters more than white noise of the same variance. The shuffle that scrambles
+//!   the index (the same for every pixel) assigns the blocks, flipping each bit of the
+//!   Morton index by a hash of the bits above it: a nested random assignment of
+//!   quadrants, where pbrt permutes base-4 digits.
 //! - [`Rng`]: an independent PCG32 stream per path (plain Monte Carlo).
 //!
 //! Dimensions follow a fixed layout ([`Dim`]): the camera's 2-D pair, then per bounce the
@@ -93,14 +104,16 @@ impl PathSampler for Rng {
     }
 }
 
-/// Sample `index` of one pixel's padded Owen-scrambled Sobol sequence.
+/// One sample's Owen-scrambled Sobol point: padded per pixel ([`Self::for_sample`]) or
+/// laid in Z order across the image ([`Self::z_ordered`]).
 #[derive(Clone, Debug)]
 pub struct SobolSample {
-    /// Hash of (seed, pixel): every dimension's scrambles derive from it.
-    pixel: u64,
-    /// The index within the sample's replicate (the pixel's sample index / 2) with its
-    /// bits reversed: the form the shuffle scrambles (kept once per path instead of
-    /// reversed again for every dimension).
+    /// The hash every dimension's scrambles derive from: of (seed, pixel, replicate) when
+    /// padded, of (seed, replicate, round) in Z order.
+    key: u64,
+    /// The index along the scrambled sequence (padded: the pixel's sample index / 2; in
+    /// Z order: [`ZOrder::index`]) with its bits reversed: the form the shuffle scrambles
+    /// (kept once per path instead of reversed again for every dimension).
     index_reversed: u32,
     /// The bounce being drawn for (0 = the camera ray's hit), and the slot drawn last
     /// there (`None` before the first).
@@ -117,9 +130,28 @@ impl SobolSample {
         let h = mix64(seed ^ 0x6a09_e667_f3bc_c909);
         let pixel = mix64(h ^ (u64::from(x) | (u64::from(y) << 32)));
         let replicate = u64::from(index & 1).wrapping_mul(0xbb67_ae85_84ca_a73b);
+        Self::at_index(mix64(pixel ^ replicate), index >> 1)
+    }
+
+    /// Sample `index` of pixel (x, y) under `seed`, in the image-wide Z order `order`:
+    /// point `index / 2` of the pixel's block in replicate `index % 2`. As with
+    /// [`Self::for_sample`], the two replicates are independently scrambled, so the
+    /// adaptive loop's halves stay independent estimates.
+    #[inline]
+    #[must_use]
+    pub fn z_ordered(seed: u64, x: u32, y: u32, index: u32, order: ZOrder) -> Self {
+        let (global, round) = order.index(x, y, index >> 1);
+        let h = mix64(seed ^ 0x3c6e_f372_fe94_f82b);
+        let replicate = u64::from(index & 1).wrapping_mul(0xbb67_ae85_84ca_a73b);
+        let round = u64::from(round).wrapping_mul(0xa54f_f53a_5f1d_36f1);
+        Self::at_index(mix64(h ^ replicate ^ round), global)
+    }
+
+    #[inline(always)]
+    fn at_index(key: u64, index: u32) -> Self {
         Self {
-            pixel: mix64(pixel ^ replicate),
-            index_reversed: (index >> 1).reverse_bits(),
+            key,
+            index_reversed: index.reverse_bits(),
             depth: 0,
             last_slot: None,
         }
@@ -148,7 +180,7 @@ impl SobolSample {
     /// The hash of dimension `d`: two independent 32-bit seeds per call.
     #[inline(always)]
     fn dim_hash(&self, d: u32) -> u64 {
-        mix64(self.pixel ^ u64::from(d).wrapping_mul(0x9e37_79b9_7f4a_7c15))
+        mix64(self.key ^ u64::from(d).wrapping_mul(0x9e37_79b9_7f4a_7c15))
     }
 }
 
@@ -175,6 +207,71 @@ impl PathSampler for SobolSample {
             unit(laine_karras(sobol_dim1_reversed(i), sy).reverse_bits()),
         )
     }
+}
+
+/// Where a render's pixels and samples lie along the one Sobol sequence of
+/// [`SobolSample::z_ordered`]: bit for bit, the pixel's Morton code above its sample's
+/// index within the pixel's block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ZOrder {
+    /// Bits of the Morton code: twice those of the image's longer side rounded up to a
+    /// power of two.
+    pixel_bits: u32,
+    /// Bits of a sample's place in its pixel's block: a replicate's share of the declared
+    /// samples per pixel, rounded up to a power of two, as far as 32 bits allow.
+    sample_bits: u32,
+}
+
+impl ZOrder {
+    /// The order of a `width` × `height` render of `samples_per_pixel` samples.
+    #[must_use]
+    pub fn new(width: u32, height: u32, samples_per_pixel: u32) -> Self {
+        let side = width.max(height).max(1).checked_next_power_of_two();
+        let pixel_bits = side.map_or(32, |s| (2 * s.trailing_zeros()).min(32));
+        let per_replicate = samples_per_pixel.div_ceil(2).max(1);
+        let sample_bits = per_replicate
+            .checked_next_power_of_two()
+            .map_or(31, u32::trailing_zeros)
+            .min(32 - pixel_bits);
+        Self {
+            pixel_bits,
+            sample_bits,
+        }
+    }
+
+    /// The bits of an index that are a sample's place in its pixel's block.
+    #[inline(always)]
+    fn within_mask(self) -> u32 {
+        1u32.checked_shl(self.sample_bits)
+            .unwrap_or(0)
+            .wrapping_sub(1)
+    }
+
+    /// The index of point `j` of pixel (x, y)'s block, and the round it belongs to.
+    /// Points past the block (an adaptive pass beyond the declared samples) start new
+    /// rounds, each scrambled independently: the sequence never runs into another
+    /// pixel's block.
+    #[inline(always)]
+    fn index(self, x: u32, y: u32, j: u32) -> (u32, u32) {
+        let round = j.checked_shr(self.sample_bits).unwrap_or(0);
+        let within = j & self.within_mask();
+        let pixel = morton(x, y) & (1u64 << self.pixel_bits).wrapping_sub(1);
+        let global = (pixel << self.sample_bits) as u32 | within;
+        (global, round)
+    }
+}
+
+/// The Morton code of (x, y): their low 16 bits interleaved, x's in the even places.
+#[inline(always)]
+fn morton(x: u32, y: u32) -> u64 {
+    let spread = |v: u32| {
+        let mut v = u64::from(v & 0xffff);
+        v = (v | (v << 8)) & 0x00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333;
+        (v | (v << 1)) & 0x5555_5555
+    };
+    spread(x) | (spread(y) << 1)
 }
 
 /// A 32-bit fixed-point fraction as an f32 in [0, 1): its top 24 bits (f32's mantissa),
@@ -444,6 +541,127 @@ mod tests {
         }
         assert_eq!(unit(u32::MAX), 16_777_215.0 / 16_777_216.0);
         assert_eq!(unit(0), 0.0);
+    }
+
+    /// The 2-D points of `dim` at bounce `depth` of replicate `r`'s points `js` of every
+    /// pixel in `pixels`, in Z order under `order`.
+    fn z_points(
+        order: ZOrder,
+        pixels: impl Iterator<Item = (u32, u32)>,
+        js: std::ops::Range<u32>,
+        r: u32,
+        (dim, depth): (Dim, u32),
+    ) -> Vec<(f64, f64)> {
+        let mut pts = Vec::new();
+        for (x, y) in pixels {
+            for j in js.clone() {
+                let mut s = SobolSample::z_ordered(11, x, y, 2 * j + r, order).at_bounce(depth);
+                let p = s.get_2d(dim);
+                pts.push((f64::from(p.x), f64::from(p.y)));
+            }
+        }
+        pts
+    }
+
+    fn block(x0: u32, y0: u32, side: u32) -> impl Iterator<Item = (u32, u32)> {
+        (0..side * side).map(move |i| (x0 + i % side, y0 + i / side))
+    }
+
+    #[test]
+    fn morton_codes_interleave_x_and_y() {
+        assert_eq!(morton(0, 0), 0);
+        assert_eq!(morton(1, 0), 1);
+        assert_eq!(morton(0, 1), 2);
+        assert_eq!(morton(3, 3), 15);
+        assert_eq!(morton(5, 9), 0b1001_0011);
+        assert_eq!(morton(0xffff, 0xffff), 0xffff_ffff);
+    }
+
+    #[test]
+    fn z_order_fits_pixels_and_samples_in_32_bits() {
+        // 640 × 480 → a 1024 side: 20 bits of pixel; 64 spp → 32 per replicate: 5 bits.
+        let o = ZOrder::new(640, 480, 64);
+        assert_eq!((o.pixel_bits, o.sample_bits), (20, 5));
+        assert_eq!(
+            ZOrder::new(1, 1, 1),
+            ZOrder {
+                pixel_bits: 0,
+                sample_bits: 0
+            }
+        );
+        // Odd counts round up: 5 spp → 3 per replicate → blocks of 4.
+        assert_eq!(ZOrder::new(2, 2, 5).sample_bits, 2);
+        for (w, h, n) in [
+            (u32::MAX, 1, u32::MAX),
+            (65_536, 3, 1 << 20),
+            (3, 2, u32::MAX),
+        ] {
+            let o = ZOrder::new(w, h, n);
+            assert!(o.pixel_bits + o.sample_bits <= 32, "{w}×{h} {n}: {o:?}");
+            let (g, round) = o.index(w - 1, h - 1, u32::MAX);
+            let mut s = SobolSample::z_ordered(0, w - 1, h - 1, u32::MAX, o);
+            assert!((0.0..1.0).contains(&s.get_1d(Dim::Roulette)), "{g} {round}");
+        }
+    }
+
+    #[test]
+    fn a_pixels_z_ordered_prefixes_are_nets() {
+        let order = ZOrder::new(64, 48, 128);
+        for (x, y) in [(0, 0), (37, 21), (63, 47)] {
+            for slot in [(Dim::Camera, 0), (Dim::Bsdf, 2)] {
+                for r in 0..2 {
+                    for m in 0..=6 {
+                        let pts = z_points(order, [(x, y)].into_iter(), 0..1 << m, r, slot);
+                        assert!(is_net(&pts), "({x}, {y}) {slot:?} r{r} 2^{m}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn aligned_blocks_of_pixels_share_one_net() {
+        // What spreads the error as blue noise: the points of a 2^k × 2^k block of pixels
+        // together are as evenly spread as one pixel's.
+        let order = ZOrder::new(64, 64, 8);
+        for (x0, y0, side) in [(0, 0, 2), (6, 10, 2), (4, 8, 4), (16, 0, 8)] {
+            for slot in [(Dim::Camera, 0), (Dim::LightPoint, 1), (Dim::Bsdf, 4)] {
+                let pts = z_points(order, block(x0, y0, side), 0..4, 1, slot);
+                assert!(is_net(&pts), "({x0}, {y0}) side {side} {slot:?}");
+            }
+        }
+        // Padded Sobol does not: each pixel is scrambled on its own.
+        let padded: Vec<_> = block(0, 0, 4)
+            .flat_map(|(x, y)| {
+                (0..4).map(move |j| {
+                    let p = SobolSample::for_sample(11, x, y, 2 * j).get_2d(Dim::Camera);
+                    (f64::from(p.x), f64::from(p.y))
+                })
+            })
+            .collect();
+        assert!(!is_net(&padded));
+    }
+
+    #[test]
+    fn points_past_the_declared_block_start_an_independent_round() {
+        let order = ZOrder::new(16, 16, 8);
+        let slot = (Dim::Bsdf, 1);
+        let first = z_points(order, [(3, 5)].into_iter(), 0..4, 0, slot);
+        let second = z_points(order, [(3, 5)].into_iter(), 4..8, 0, slot);
+        assert!(is_net(&second));
+        assert!(first.iter().all(|p| !second.contains(p)));
+        // Another pixel's block is not reused.
+        let neighbour = z_points(order, [(4, 5)].into_iter(), 0..4, 0, slot);
+        assert!(second.iter().all(|p| !neighbour.contains(p)));
+    }
+
+    #[test]
+    fn z_ordered_replicates_are_scrambled_apart() {
+        let order = ZOrder::new(8, 8, 16);
+        let even = z_points(order, block(0, 0, 8), 0..8, 0, (Dim::Camera, 0));
+        let odd = z_points(order, block(0, 0, 8), 0..8, 1, (Dim::Camera, 0));
+        let shared = even.iter().filter(|p| odd.contains(p)).count();
+        assert!(shared < 4, "{shared} of {} points shared", even.len());
     }
 
     #[test]

@@ -113,9 +113,9 @@ struct Importer<'a> {
     camera: Option<(DMat4, f64)>,
     size: (u64, u64),
     spp: u64,
-    /// `Sampler "independent"` keeps plain Monte Carlo; pbrt's other samplers (and its
-    /// default, zsobol) are all stratified or low-discrepancy, which Glimpse's Sobol
-    /// sampler stands for.
+    /// `Sampler "independent"` keeps plain Monte Carlo and `"zsobol"` (pbrt-v4's default)
+    /// its Z-ordered Sobol; pbrt's other samplers are all stratified or low-discrepancy,
+    /// which Glimpse's padded Sobol sampler stands for.
     sampler: SamplerKind,
     max_depth: u64,
     world: bool,
@@ -158,7 +158,7 @@ pub fn import(
         camera: None,
         size: (1280, 720),
         spp: 16,
-        sampler: SamplerKind::Sobol,
+        sampler: SamplerKind::ZSobol,
         max_depth: 5,
         world: false,
         prims: Vec::new(),
@@ -560,7 +560,7 @@ mod tests {
     }
 
     #[test]
-    fn pbrts_independent_sampler_stays_independent_and_the_others_become_sobol() {
+    fn pbrts_samplers_map_to_the_nearest_of_ours() {
         let sampler_of = |directive: &str| {
             let text = format!("{directive}{}", mesh("0 1 2", "0 0 0 1 0 0 0 1 0"));
             run(&text, &[], &limits()).unwrap().doc.render
@@ -570,10 +570,15 @@ mod tests {
             (r.sampler, r.samples_per_pixel),
             (SamplerKind::Independent, 8)
         );
-        for other in ["zsobol", "halton", "stratified", "paddedsobol", "pmj02bn"] {
+        for other in ["halton", "stratified", "sobol", "paddedsobol", "pmj02bn"] {
             let r = sampler_of(&format!("Sampler \"{other}\"\n"));
             assert_eq!(r.sampler, SamplerKind::Sobol, "{other}");
         }
-        assert_eq!(sampler_of("").sampler, SamplerKind::Sobol);
+        // pbrt-v4's default sampler, named or not.
+        assert_eq!(
+            sampler_of("Sampler \"zsobol\"\n").sampler,
+            SamplerKind::ZSobol
+        );
+        assert_eq!(sampler_of("").sampler, SamplerKind::ZSobol);
     }
 }

@@ -85,10 +85,10 @@ impl Importer<'_> {
             return Err(pos.error(format!("pixelsamples must be ≥ 1, got {n}")));
         }
         self.spp = n as u64;
-        self.sampler = if ty == "independent" {
-            SamplerKind::Independent
-        } else {
-            SamplerKind::Sobol
+        self.sampler = match ty {
+            "independent" => SamplerKind::Independent,
+            "zsobol" => SamplerKind::ZSobol,
+            _ => SamplerKind::Sobol,
         };
         Ok(())
     }

@@ -905,6 +905,7 @@ fn render_sampler_is_independent_unless_sobol_is_asked_for() {
     );
     for (name, kind) in [
         ("sobol", SamplerKind::Sobol),
+        ("zsobol", SamplerKind::ZSobol),
         ("independent", SamplerKind::Independent),
     ] {
         let s = parse(&with(|v| v["render"] = json!({"sampler": name}))).unwrap();
@@ -913,7 +914,7 @@ fn render_sampler_is_independent_unless_sobol_is_asked_for() {
     }
     let (_, _, msg) = refused(&with(|v| v["render"]["sampler"] = json!("Sobol")).to_string());
     assert!(
-        msg.contains("independent") && msg.contains("sobol"),
+        msg.contains("independent") && msg.contains("sobol") && msg.contains("zsobol"),
         "{msg}"
     );
 }
