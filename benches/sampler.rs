@@ -21,11 +21,16 @@
 //!   count) of every bundled scene written there as PNG.
 //! - `SAMPLER_TRUTH=N`: the truth's samples per pixel (default 1024, even: two halves).
 //! - `SAMPLER_CACHE=DIR`: where truths are cached (default target/sampler-truth).
+//! - `SAMPLER_DENOISE=1`: judge every render and the truth after Intel Open Image Denoise
+//!   (`High`, clean albedo and normal guides): which samples the denoiser makes most of
+//!   (the library from `bash scripts/oidn.sh`).
 
 use std::path::{Path, PathBuf};
 
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
+use glimpse::denoise::{Aux, Denoiser, Quality};
+use glimpse::progressive::denoise_input_scale;
 use glimpse::raster::{codec::to_display_rgb8, LinearImage};
 use glimpse::scene::SamplerKind;
 use glimpse::scene::Scene;
@@ -43,6 +48,7 @@ struct Options {
     crops: Option<PathBuf>,
     cache: PathBuf,
     truth_spp: u32,
+    denoise: bool,
 }
 
 fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
@@ -78,6 +84,7 @@ fn options() -> Options {
         crops: std::env::var("SAMPLER_CROPS").ok().map(PathBuf::from),
         cache: env_or("SAMPLER_CACHE", PathBuf::from("target/sampler-truth")),
         truth_spp: env_or("SAMPLER_TRUTH", 1024),
+        denoise: env_or("SAMPLER_DENOISE", 0) != 0,
     }
 }
 
@@ -126,12 +133,18 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     let scene = &loaded.scene;
     let (truth, truth_halves) = truth_of(loaded, o);
     let d = &scene.display;
+    let denoise = o.denoise.then(|| denoiser_for(scene));
+    let finish = |img: LinearImage| match &denoise {
+        Some(f) => f(&img),
+        None => img,
+    };
+    let truth = finish(truth);
     let mut flips = Vec::new();
     for (k, &spp) in o.spp.iter().enumerate() {
         let imgs: Vec<LinearImage> = o
             .kinds
             .iter()
-            .map(|&kind| render(scene, kind, spp, scene.render.seed))
+            .map(|&kind| finish(render(scene, kind, spp, scene.render.seed)))
             .collect();
         flips.push(
             imgs.iter()
@@ -147,6 +160,24 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
         name: scene.name.clone(),
         flips,
         truth_halves,
+    }
+}
+
+/// The scene's denoise: `High`, with its first hits' albedo and normal as clean guides.
+fn denoiser_for(scene: &Scene) -> impl Fn(&LinearImage) -> LinearImage {
+    let denoiser = Denoiser::shared().unwrap_or_else(|e| panic!("SAMPLER_DENOISE: {e}"));
+    let aux = tracer::aux::aux_maps(&PathTracer::new(scene), &CancelToken::new())
+        .expect("never cancelled");
+    let scale = denoise_input_scale(scene);
+    move |img| {
+        let guides = Aux {
+            albedo: &aux.albedo,
+            normal: &aux.normal,
+            clean: true,
+        };
+        denoiser
+            .denoise(img, Some(&guides), Quality::High, scale)
+            .expect("the denoiser runs")
     }
 }
 
@@ -211,12 +242,13 @@ fn main() {
     let names: Vec<&str> = o.kinds.iter().map(|k| k.as_str()).collect();
     println!(
         "sampler bench: FLIP vs truth at the declared ppd, {}, then each ÷ {}; spp {:?}, \
-         min side {:?}, truth {} spp",
+         min side {:?}, truth {} spp{}",
         names.join(", "),
         names[0],
         o.spp,
         o.min_side,
-        o.truth_spp
+        o.truth_spp,
+        if o.denoise { ", all denoised" } else { "" }
     );
     let mut files: Vec<PathBuf> = std::fs::read_dir("scenes")
         .expect("scenes/")
