@@ -5,7 +5,7 @@
 //!
 //! Two samplers, chosen by `render.sampler` ([`crate::scene::SamplerKind`]):
 //! - [`SobolSample`]: padded Owen-scrambled Sobol points (pbrt-v4's PaddedSobolSampler,
-//!   Pharr et al. 2023 §8.7.3; hash-based Owen scrambling and index shuffling, Burley
+//!   Pharr et al. 2023 §8.7; hash-based Owen scrambling and index shuffling, Burley
 //!   2020, "Practical Hash-based Owen Scrambling", JCGT 9(4)). Every dimension (a 1-D
 //!   value or a 2-D pair) has its own shuffle of the sample index and its own scramble,
 //!   so only Sobol's first two dimensions are needed and the index has no bound. The even
@@ -16,7 +16,7 @@
 //!   not (they fill each other's gaps, and their difference overstates the error).
 //! - [`SobolSample::z_ordered`]: the same points laid along one Sobol sequence for the
 //!   whole image in Morton (Z) order of the pixels (pbrt-v4's ZSobolSampler, Pharr et al.
-//!   2023 §8.7.4, after Ahmed & Wonka 2020, "Screen-Space Blue-Noise Diffusion of Monte
+//!   2023 §8.7, after Ahmed & Wonka 2020, "Screen-Space Blue-Noise Diffusion of Monte
 //!   Carlo Sampling Error via Hierarchical Ordering of Pixels"). A pixel's samples are one
 //!   aligned block of the sequence, and each 2×2, 4×4, … block of pixels holds one aligned
 //!   block of blocks, so neighbouring pixels' samples fill each other's gaps: the error is
