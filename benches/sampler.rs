@@ -12,6 +12,9 @@
 //! `cargo bench --bench sampler`, options through the environment:
 //! - `SAMPLER_CORPUS=N`: corpus scenes (default 6; 0 = none).
 //! - `SAMPLER_BUNDLED=0`: the corpus alone.
+//! - `SAMPLER_PUBLIC=DIR`: also every `DIR/NAME/scene-v4.pbrt` (`../shared/scenes-public`),
+//!   imported as `glimpse bench` imports them (256 px on the long side), judged and
+//!   reported beside the bundled scenes.
 //! - `SAMPLER_MIN_SIDE=PX`: every scene scaled up to PX on its long side, as
 //!   `glimpse bench --min-side` does (default: as written).
 //! - `SAMPLER_SPP=16,32,64`: the sample counts compared.
@@ -42,6 +45,7 @@ const HALF_SEED: u64 = 0x5bd1_e995;
 struct Options {
     corpus: usize,
     bundled: bool,
+    public: Option<PathBuf>,
     min_side: Option<u32>,
     spp: Vec<u32>,
     kinds: Vec<SamplerKind>,
@@ -66,6 +70,7 @@ fn options() -> Options {
     Options {
         corpus: env_or("SAMPLER_CORPUS", 6),
         bundled: env_or("SAMPLER_BUNDLED", 1) != 0,
+        public: std::env::var("SAMPLER_PUBLIC").ok().map(PathBuf::from),
         min_side: std::env::var("SAMPLER_MIN_SIDE")
             .ok()
             .map(|v| v.parse().expect("SAMPLER_MIN_SIDE")),
@@ -214,6 +219,20 @@ fn load(path: &Path, o: &Options) -> Loaded {
     bench::load(path, &cfg).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// `dir/NAME/scene-v4.pbrt` for every NAME, sorted (none without a folder).
+fn public_files(dir: Option<&Path>) -> Vec<PathBuf> {
+    let Some(dir) = dir else {
+        return Vec::new();
+    };
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("SAMPLER_PUBLIC={}: {e}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path().join("scene-v4.pbrt")))
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    files
+}
+
 fn print_row(e: &SceneErrors, spp: &[u32]) {
     let cells: Vec<String> = e
         .flips
@@ -262,6 +281,11 @@ fn main() {
     let mut bundled = Vec::new();
     for f in &files {
         let e = judge(&load(f, &o), &o, o.crops.as_deref());
+        print_row(&e, &o.spp);
+        bundled.push(e);
+    }
+    for f in public_files(o.public.as_deref()) {
+        let e = judge(&load(&f, &o), &o, None);
         print_row(&e, &o.spp);
         bundled.push(e);
     }
