@@ -17,6 +17,8 @@
 //!   reported beside the bundled scenes.
 //! - `SAMPLER_MIN_SIDE=PX`: every scene scaled up to PX on its long side, as
 //!   `glimpse bench --min-side` does (default: as written).
+//! - `SAMPLER_PPD=N`: judge at N pixels per degree instead of each scene's declared
+//!   viewing condition (the truths' cache is the same).
 //! - `SAMPLER_SPP=16,32,64`: the sample counts compared.
 //! - `SAMPLER_KINDS=independent,sobol,zsobol`: the samplers compared, the first the
 //!   baseline of every ratio.
@@ -32,7 +34,8 @@ use std::path::{Path, PathBuf};
 
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
-use glimpse::denoise::{Aux, Denoiser, Quality};
+use glimpse::denoise::{Denoiser, Quality};
+use glimpse::progressive::adaptive::estimate::Filter;
 use glimpse::progressive::denoise_input_scale;
 use glimpse::raster::{codec::to_display_rgb8, LinearImage};
 use glimpse::scene::SamplerKind;
@@ -47,6 +50,7 @@ struct Options {
     bundled: bool,
     public: Option<PathBuf>,
     min_side: Option<u32>,
+    ppd: Option<f32>,
     spp: Vec<u32>,
     kinds: Vec<SamplerKind>,
     crops: Option<PathBuf>,
@@ -71,6 +75,9 @@ fn options() -> Options {
         corpus: env_or("SAMPLER_CORPUS", 6),
         bundled: env_or("SAMPLER_BUNDLED", 1) != 0,
         public: std::env::var("SAMPLER_PUBLIC").ok().map(PathBuf::from),
+        ppd: std::env::var("SAMPLER_PPD")
+            .ok()
+            .map(|v| v.parse().expect("SAMPLER_PPD")),
         min_side: std::env::var("SAMPLER_MIN_SIDE")
             .ok()
             .map(|v| v.parse().expect("SAMPLER_MIN_SIDE")),
@@ -138,10 +145,11 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     let scene = &loaded.scene;
     let (truth, truth_halves) = truth_of(loaded, o);
     let d = &scene.display;
-    let denoise = o.denoise.then(|| denoiser_for(scene));
-    let finish = |img: LinearImage| match &denoise {
-        Some(f) => f(&img),
-        None => img,
+    let filter = filter_for(scene, o);
+    let finish = |img: LinearImage| {
+        filter
+            .apply(&img, Quality::High)
+            .expect("the denoiser runs")
     };
     let truth = finish(truth);
     let mut flips = Vec::new();
@@ -168,21 +176,18 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     }
 }
 
-/// The scene's denoise: `High`, with its first hits' albedo and normal as clean guides.
-fn denoiser_for(scene: &Scene) -> impl Fn(&LinearImage) -> LinearImage {
-    let denoiser = Denoiser::shared().unwrap_or_else(|e| panic!("SAMPLER_DENOISE: {e}"));
-    let aux = tracer::aux::aux_maps(&PathTracer::new(scene), &CancelToken::new())
-        .expect("never cancelled");
-    let scale = denoise_input_scale(scene);
-    move |img| {
-        let guides = Aux {
-            albedo: &aux.albedo,
-            normal: &aux.normal,
-            clean: true,
-        };
-        denoiser
-            .denoise(img, Some(&guides), Quality::High, scale)
-            .expect("the denoiser runs")
+/// How every render and the truth are finished: as traced, or (`SAMPLER_DENOISE=1`)
+/// through OIDN with the scene's first hits' albedo and normal as clean guides, as
+/// `adaptive` denoises.
+fn filter_for<'a>(scene: &Scene, o: &Options) -> Filter<'a> {
+    if !o.denoise {
+        return Filter::Raw;
+    }
+    Filter::Denoised {
+        denoiser: Denoiser::shared().unwrap_or_else(|e| panic!("SAMPLER_DENOISE: {e}")),
+        aux: tracer::aux::aux_maps(&PathTracer::new(scene), &CancelToken::new())
+            .expect("never cancelled"),
+        input_scale: denoise_input_scale(scene),
     }
 }
 
@@ -216,21 +221,11 @@ fn write_crops(dir: &Path, name: &str, spp: u32, imgs: &[&LinearImage], exposure
 fn load(path: &Path, o: &Options) -> Loaded {
     let mut cfg = BenchConfig::new(PathBuf::from("scenes"), PathBuf::from("target"), false);
     cfg.min_side = o.min_side;
-    bench::load(path, &cfg).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-/// `dir/NAME/scene-v4.pbrt` for every NAME, sorted (none without a folder).
-fn public_files(dir: Option<&Path>) -> Vec<PathBuf> {
-    let Some(dir) = dir else {
-        return Vec::new();
-    };
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap_or_else(|e| panic!("SAMPLER_PUBLIC={}: {e}", dir.display()))
-        .filter_map(|e| e.ok().map(|e| e.path().join("scene-v4.pbrt")))
-        .filter(|p| p.is_file())
-        .collect();
-    files.sort();
-    files
+    let mut loaded = bench::load(path, &cfg).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    if let Some(ppd) = o.ppd {
+        loaded.scene.display.pixels_per_degree = ppd;
+    }
+    loaded
 }
 
 fn print_row(e: &SceneErrors, spp: &[u32]) {
@@ -260,8 +255,10 @@ fn main() {
     let o = options();
     let names: Vec<&str> = o.kinds.iter().map(|k| k.as_str()).collect();
     println!(
-        "sampler bench: FLIP vs truth at the declared ppd, {}, then each ÷ {}; spp {:?}, \
+        "sampler bench: FLIP vs truth at {}, {}, then each ÷ {}; spp {:?}, \
          min side {:?}, truth {} spp{}",
+        o.ppd
+            .map_or("the declared ppd".into(), |p| format!("{p} ppd")),
         names.join(", "),
         names[0],
         o.spp,
@@ -284,7 +281,10 @@ fn main() {
         print_row(&e, &o.spp);
         bundled.push(e);
     }
-    for f in public_files(o.public.as_deref()) {
+    let public = o.public.as_deref().map_or_else(Vec::new, |dir| {
+        bench::public_files(dir).unwrap_or_else(|e| panic!("SAMPLER_PUBLIC: {e:#}"))
+    });
+    for f in public {
         let e = judge(&load(&f, &o), &o, None);
         print_row(&e, &o.spp);
         bundled.push(e);

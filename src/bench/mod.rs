@@ -329,7 +329,7 @@ pub fn run(cfg: &BenchConfig) -> anyhow::Result<Study> {
 }
 
 /// The public scenes of `dir`: every `NAME/scene-v4.pbrt`, sorted by NAME.
-fn public_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+pub fn public_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("cannot read the public scene folder {}", dir.display()))?
         .filter_map(Result::ok)

@@ -6,7 +6,7 @@
 //! triangle whose contour was traced is subdivided along that contour in the next
 //! iteration ("a complex triangle is of course subdivided during the next iteration").
 
-use crate::raster::{PixelCoord, Rgb};
+use crate::raster::{morton, PixelCoord, Rgb};
 use crate::scene::ObjectId;
 use rayon::prelude::*;
 use spade::{DelaunayTriangulation, HasPosition, Point2, Triangulation};
@@ -175,20 +175,6 @@ impl Triangulator {
             .nearest_neighbor(Point2::new(f64::from(x), f64::from(y)))
             .map(|h| PixelCoord::new(h.data().x, h.data().y))
     }
-}
-
-/// Interleaves the bits of x and y (Z-order curve key).
-fn morton(x: u32, y: u32) -> u64 {
-    fn spread(v: u32) -> u64 {
-        let mut v = u64::from(v);
-        v = (v | (v << 16)) & 0x0000_FFFF_0000_FFFF;
-        v = (v | (v << 8)) & 0x00FF_00FF_00FF_00FF;
-        v = (v | (v << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
-        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
-        v = (v | (v << 1)) & 0x5555_5555_5555_5555;
-        v
-    }
-    spread(x) | (spread(y) << 1)
 }
 
 /// Which triangle owns each pixel, and each triangle's pixels grouped (counting sort).
@@ -734,15 +720,6 @@ mod tests {
             assert!((v.x - mean).abs() < 1e-6);
         }
         assert!(untextured(c, [va[0], Rgb::new(0.5, 0.0, 0.5), va[2]]).is_none());
-    }
-
-    #[test]
-    fn morton_interleaves_bits() {
-        assert_eq!(morton(0, 0), 0);
-        assert_eq!(morton(1, 0), 1);
-        assert_eq!(morton(0, 1), 2);
-        assert_eq!(morton(3, 3), 15);
-        assert_eq!(morton(u32::MAX, 0), 0x5555_5555_5555_5555);
     }
 
     #[test]

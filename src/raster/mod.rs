@@ -28,6 +28,22 @@ impl PixelCoord {
     }
 }
 
+/// The Morton (Z-order) key of (x, y): their bits interleaved, x's in the even places, so
+/// every aligned 2^k × 2^k square of pixels is one run of 4^k consecutive keys.
+#[must_use]
+pub fn morton(x: u32, y: u32) -> u64 {
+    fn spread(v: u32) -> u64 {
+        let mut v = u64::from(v);
+        v = (v | (v << 16)) & 0x0000_FFFF_0000_FFFF;
+        v = (v | (v << 8)) & 0x00FF_00FF_00FF_00FF;
+        v = (v | (v << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        v = (v | (v << 1)) & 0x5555_5555_5555_5555;
+        v
+    }
+    spread(x) | (spread(y) << 1)
+}
+
 /// A width × height buffer of `T`, row-major.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image<T> {
@@ -175,6 +191,17 @@ pub fn srgb_decode(e: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn morton_interleaves_bits() {
+        assert_eq!(morton(0, 0), 0);
+        assert_eq!(morton(1, 0), 1);
+        assert_eq!(morton(0, 1), 2);
+        assert_eq!(morton(3, 3), 15);
+        assert_eq!(morton(5, 9), 0b1001_0011);
+        assert_eq!(morton(0xffff, 0xffff), 0xffff_ffff);
+        assert_eq!(morton(u32::MAX, 0), 0x5555_5555_5555_5555);
+    }
 
     #[test]
     fn srgb_round_trip_and_known_values() {

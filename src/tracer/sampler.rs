@@ -34,6 +34,7 @@
 //! one drawn begins the next bounce: the sampler counts bounces itself.
 
 use super::rng::{mix64, Rng};
+use crate::raster::morton;
 use glam::Vec2;
 
 /// What a number is for: its slot in the per-bounce layout.
@@ -228,10 +229,12 @@ impl ZOrder {
     pub fn new(width: u32, height: u32, samples_per_pixel: u32) -> Self {
         let side = width.max(height).max(1).checked_next_power_of_two();
         let pixel_bits = side.map_or(32, |s| (2 * s.trailing_zeros()).min(32));
+        // At most 2^31 (u32::MAX / 2 rounded up), so it has a next power of two and
+        // `sample_bits` ≤ 31: every shift below is in range.
         let per_replicate = samples_per_pixel.div_ceil(2).max(1);
         let sample_bits = per_replicate
-            .checked_next_power_of_two()
-            .map_or(31, u32::trailing_zeros)
+            .next_power_of_two()
+            .trailing_zeros()
             .min(32 - pixel_bits);
         Self {
             pixel_bits,
@@ -242,9 +245,7 @@ impl ZOrder {
     /// The bits of an index that are a sample's place in its pixel's block.
     #[inline(always)]
     fn within_mask(self) -> u32 {
-        1u32.checked_shl(self.sample_bits)
-            .unwrap_or(0)
-            .wrapping_sub(1)
+        (1u32 << self.sample_bits) - 1
     }
 
     /// The index of point `j` of pixel (x, y)'s block, and the round it belongs to.
@@ -253,25 +254,12 @@ impl ZOrder {
     /// pixel's block.
     #[inline(always)]
     fn index(self, x: u32, y: u32, j: u32) -> (u32, u32) {
-        let round = j.checked_shr(self.sample_bits).unwrap_or(0);
+        let round = j >> self.sample_bits;
         let within = j & self.within_mask();
         let pixel = morton(x, y) & (1u64 << self.pixel_bits).wrapping_sub(1);
         let global = (pixel << self.sample_bits) as u32 | within;
         (global, round)
     }
-}
-
-/// The Morton code of (x, y): their low 16 bits interleaved, x's in the even places.
-#[inline(always)]
-fn morton(x: u32, y: u32) -> u64 {
-    let spread = |v: u32| {
-        let mut v = u64::from(v & 0xffff);
-        v = (v | (v << 8)) & 0x00ff_00ff;
-        v = (v | (v << 4)) & 0x0f0f_0f0f;
-        v = (v | (v << 2)) & 0x3333_3333;
-        (v | (v << 1)) & 0x5555_5555
-    };
-    spread(x) | (spread(y) << 1)
 }
 
 /// A 32-bit fixed-point fraction as an f32 in [0, 1): its top 24 bits (f32's mantissa),
@@ -568,16 +556,6 @@ mod tests {
     }
 
     #[test]
-    fn morton_codes_interleave_x_and_y() {
-        assert_eq!(morton(0, 0), 0);
-        assert_eq!(morton(1, 0), 1);
-        assert_eq!(morton(0, 1), 2);
-        assert_eq!(morton(3, 3), 15);
-        assert_eq!(morton(5, 9), 0b1001_0011);
-        assert_eq!(morton(0xffff, 0xffff), 0xffff_ffff);
-    }
-
-    #[test]
     fn z_order_fits_pixels_and_samples_in_32_bits() {
         // 640 × 480 → a 1024 side: 20 bits of pixel; 64 spp → 32 per replicate: 5 bits.
         let o = ZOrder::new(640, 480, 64);
@@ -599,6 +577,8 @@ mod tests {
             let o = ZOrder::new(w, h, n);
             assert!(o.pixel_bits + o.sample_bits <= 32, "{w}×{h} {n}: {o:?}");
             let (g, round) = o.index(w - 1, h - 1, u32::MAX);
+            assert!(u64::from(g) < 1u64 << (o.pixel_bits + o.sample_bits), "{g}");
+            assert_eq!(round, u32::MAX >> o.sample_bits);
             let mut s = SobolSample::z_ordered(0, w - 1, h - 1, u32::MAX, o);
             assert!((0.0..1.0).contains(&s.get_1d(Dim::Roulette)), "{g} {round}");
         }
