@@ -5,9 +5,15 @@
 //! for each sampler against the independent one: ≤ 0.8 on every bundled scene and on
 //! the corpus median, at every sample count, and no scene worse by more than 2 %.
 //!
-//! The truth is two renders of independent seeds (Sobol, half the truth's samples each,
-//! cached like `glimpse bench`'s truths); FLIP between the two halves is printed beside
-//! the errors it must stay well under (the truth's own error is about that over √2).
+//! Each sampler's render times give its cost per sample on the scene (all its renders'
+//! seconds ÷ their samples), and from that its error at *equal time* beside the first
+//! sampler's: read off the straight line, in log–log, through its two nearest measured
+//! counts, at the count it could have traced in the first sampler's time.
+//!
+//! The truth is two renders of independent seeds, neither the compared renders' (Sobol,
+//! half the truth's samples each, cached like `glimpse bench`'s truths); FLIP between
+//! the two halves is printed beside the errors it must stay well under (the truth's own
+//! error is about that over √2).
 //!
 //! `cargo bench --bench sampler`, options through the environment:
 //! - `SAMPLER_CORPUS=N`: corpus scenes (default 6; 0 = none).
@@ -31,6 +37,7 @@
 //!   (the library from `bash scripts/oidn.sh`).
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
@@ -42,8 +49,11 @@ use glimpse::scene::SamplerKind;
 use glimpse::scene::Scene;
 use glimpse::tracer::{self, PathTracer};
 
-/// Seed of the compared renders' second truth half, against the scene's own (any other).
-const HALF_SEED: u64 = 0x5bd1_e995;
+/// What the truth's two halves xor into the scene's seed. Neither half may use the seed
+/// of the compared renders: padded Sobol's samples are a function of (seed, pixel,
+/// index) alone, so a half traced with the renders' own seed would contain a padded
+/// Sobol render's samples and flatter its error.
+const TRUTH_SEEDS: [u64; 2] = [0x2545_f491_4f6c_dd1d, 0x5bd1_e995];
 
 struct Options {
     corpus: usize,
@@ -81,10 +91,16 @@ fn options() -> Options {
         min_side: std::env::var("SAMPLER_MIN_SIDE")
             .ok()
             .map(|v| v.parse().expect("SAMPLER_MIN_SIDE")),
-        spp: spp
-            .split(',')
-            .map(|s| s.trim().parse().expect("SAMPLER_SPP"))
-            .collect(),
+        spp: {
+            // Ascending: the equal-time reading interpolates between neighbours.
+            let mut v: Vec<u32> = spp
+                .split(',')
+                .map(|s| s.trim().parse().expect("SAMPLER_SPP"))
+                .collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        },
         kinds: std::env::var("SAMPLER_KINDS")
             .unwrap_or_else(|_| "independent,sobol,zsobol".into())
             .split(',')
@@ -100,11 +116,28 @@ fn options() -> Options {
     }
 }
 
-/// One scene's errors: per sample count, one per sampler; and the truth's own.
+/// One scene's errors: per sample count, one per sampler; each sampler's seconds per
+/// sample over all its renders of the scene; and the truth's own error.
 struct SceneErrors {
     name: String,
     flips: Vec<Vec<f64>>,
+    seconds_per_sample: Vec<f64>,
     truth_halves: f64,
+}
+
+impl SceneErrors {
+    /// Sampler `j`'s error ÷ the baseline's at the time the baseline took for `spp[k]`:
+    /// `j`'s error ([`bench::error_at_samples`]) at `spp[k]` × (the baseline's cost per
+    /// sample ÷ `j`'s).
+    fn equal_time_ratio(&self, spp: &[u32], j: usize, k: usize) -> f64 {
+        let at = f64::from(spp[k]) * self.seconds_per_sample[0] / self.seconds_per_sample[j];
+        let measured: Vec<(f64, f64)> = spp
+            .iter()
+            .zip(&self.flips)
+            .map(|(&n, f)| (f64::from(n), f[j]))
+            .collect();
+        bench::error_at_samples(&measured, at) / self.flips[k][0]
+    }
 }
 
 fn render(scene: &Scene, kind: SamplerKind, spp: u32, seed: u64) -> LinearImage {
@@ -132,7 +165,7 @@ fn truth_of(loaded: &Loaded, o: &Options) -> (LinearImage, f64) {
             .expect("truth")
             .0
     };
-    let (a, b) = (half(s.render.seed), half(s.render.seed ^ HALF_SEED));
+    let [a, b] = TRUTH_SEEDS.map(|x| half(s.render.seed ^ x));
     let d = &s.display;
     let halves = flip::flip(&a, &b, d.exposure, d.pixels_per_degree).mean;
     let mean = LinearImage::from_fn(a.width(), a.height(), |x, y| {
@@ -153,11 +186,18 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     };
     let truth = finish(truth);
     let mut flips = Vec::new();
+    let mut seconds = vec![0.0; o.kinds.len()];
     for (k, &spp) in o.spp.iter().enumerate() {
         let imgs: Vec<LinearImage> = o
             .kinds
             .iter()
-            .map(|&kind| finish(render(scene, kind, spp, scene.render.seed)))
+            .zip(&mut seconds)
+            .map(|(&kind, s)| {
+                let start = Instant::now();
+                let img = render(scene, kind, spp, scene.render.seed);
+                *s += start.elapsed().as_secs_f64();
+                finish(img)
+            })
             .collect();
         flips.push(
             imgs.iter()
@@ -169,9 +209,11 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
             write_crops(dir, &scene.name, spp, &shown, d.exposure);
         }
     }
+    let samples: u32 = o.spp.iter().sum();
     SceneErrors {
         name: scene.name.clone(),
         flips,
+        seconds_per_sample: seconds.iter().map(|s| s / f64::from(samples)).collect(),
         truth_halves,
     }
 }
@@ -228,6 +270,8 @@ fn load(path: &Path, o: &Options) -> Loaded {
     loaded
 }
 
+/// The scene's errors and their ratios to the first sampler's at equal samples, then
+/// each sampler's cost per sample and its ratio at equal time.
 fn print_row(e: &SceneErrors, spp: &[u32]) {
     let cells: Vec<String> = e
         .flips
@@ -245,10 +289,42 @@ fn print_row(e: &SceneErrors, spp: &[u32]) {
         cells.join(" | "),
         e.truth_halves
     );
+    let kinds = e.seconds_per_sample.len();
+    let cost: Vec<String> = (1..kinds)
+        .map(|j| format!("×{:.3}", e.seconds_per_sample[j] / e.seconds_per_sample[0]))
+        .collect();
+    let equal_time: Vec<String> = (0..spp.len())
+        .map(|k| {
+            let r: Vec<String> = (1..kinds)
+                .map(|j| format!("×{:.3}", e.equal_time_ratio(spp, j, k)))
+                .collect();
+            format!("{:>3}: {}", spp[k], r.join(" "))
+        })
+        .collect();
+    println!(
+        "{:<24} cost per sample {}; at equal time {}",
+        "",
+        cost.join(" "),
+        equal_time.join(" | ")
+    );
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
     bench::median(&mut v)
+}
+
+/// The largest of `v`; NaN when it is empty (no scene of that kind was judged).
+fn worst_of(v: &[f64]) -> f64 {
+    v.iter().copied().fold(f64::NAN, f64::max)
+}
+
+/// The median of `v`; NaN when it is empty.
+fn median_of(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        median(v.to_vec())
+    }
 }
 
 fn main() {
@@ -308,18 +384,12 @@ fn verdict(bundled: &[SceneErrors], corpus_rows: &[SceneErrors], o: &Options) {
         let ratio = |e: &SceneErrors, k: usize| e.flips[k][j] / e.flips[k][0];
         let mut ok = true;
         for (k, n) in o.spp.iter().enumerate() {
-            let worst = bundled
-                .iter()
-                .chain(corpus_rows)
-                .map(|e| ratio(e, k))
-                .fold(0.0, f64::max);
-            // NaN when no bundled scene was judged (`SAMPLER_BUNDLED=0`).
-            let bundled_max = bundled.iter().map(|e| ratio(e, k)).fold(f64::NAN, f64::max);
-            let corpus_median = if corpus_rows.is_empty() {
-                f64::NAN
-            } else {
-                median(corpus_rows.iter().map(|e| ratio(e, k)).collect())
-            };
+            let equal_samples =
+                |rows: &[SceneErrors]| -> Vec<f64> { rows.iter().map(|e| ratio(e, k)).collect() };
+            let (b, c) = (equal_samples(bundled), equal_samples(corpus_rows));
+            let worst = b.iter().chain(&c).copied().fold(0.0, f64::max);
+            // NaN when no scene of the kind was judged (`SAMPLER_BUNDLED=0`).
+            let (bundled_max, corpus_median) = (worst_of(&b), median_of(&c));
             let met = (bundled_max.is_nan() || bundled_max <= 0.8)
                 && (corpus_median.is_nan() || corpus_median <= 0.8)
                 && worst <= 1.02;
@@ -329,6 +399,21 @@ fn verdict(bundled: &[SceneErrors], corpus_rows: &[SceneErrors], o: &Options) {
                  ×{corpus_median:.3}, worst of all ×{worst:.3}: {}",
                 kind.as_str(),
                 if met { "met" } else { "MISSED" }
+            );
+            let timed = |rows: &[SceneErrors]| -> Vec<f64> {
+                rows.iter()
+                    .map(|e| e.equal_time_ratio(&o.spp, j, k))
+                    .collect()
+            };
+            let (b, c) = (timed(bundled), timed(corpus_rows));
+            println!(
+                "{} {n:>3} spp at equal time: bundled worst ×{:.3} median ×{:.3}, corpus \
+                 worst ×{:.3} median ×{:.3}",
+                kind.as_str(),
+                worst_of(&b),
+                median_of(&b),
+                worst_of(&c),
+                median_of(&c),
             );
         }
         println!(

@@ -1147,9 +1147,63 @@ pub fn median(v: &mut [f64]) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// The error read at `samples` off measured `(samples, error)` pairs in ascending order
+/// of samples: along the straight line, in log–log, through the two nearest pairs (the
+/// end segment's slope beyond either end); through a single pair, Monte Carlo's
+/// error ∝ 1/√samples. What a sampler's error would be at the count another sampler's
+/// time buys (`cargo bench --bench sampler`, at equal time).
+#[must_use]
+pub fn error_at_samples(measured: &[(f64, f64)], samples: f64) -> f64 {
+    let logs: Vec<(f64, f64)> = measured.iter().map(|&(n, e)| (n.ln(), e.ln())).collect();
+    let x = samples.ln();
+    let i = logs
+        .windows(2)
+        .position(|w| x <= w[1].0)
+        .unwrap_or(logs.len().saturating_sub(2));
+    let y = match logs.get(i..i + 2) {
+        Some(&[(x0, y0), (x1, y1)]) => y0 + (y1 - y0) * (x - x0) / (x1 - x0),
+        _ => logs
+            .first()
+            .map_or(f64::NAN, |&(x0, y0)| y0 - 0.5 * (x - x0)),
+    };
+    y.exp()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_error_at_a_count_follows_the_measured_power_law() {
+        let law = |n: f64| 0.3 * n.powf(-0.6);
+        let measured: Vec<(f64, f64)> = [16.0, 32.0, 64.0].map(|n| (n, law(n))).to_vec();
+        // On the pairs, between them, and beyond either end: the power law itself.
+        for n in [16.0, 24.0, 32.0, 50.0, 64.0, 8.0, 13.9, 256.0] {
+            let e = error_at_samples(&measured, n);
+            assert!(
+                (e / law(n) - 1.0).abs() < 1e-12,
+                "{n}: {e} against {}",
+                law(n)
+            );
+        }
+    }
+
+    #[test]
+    fn the_error_at_a_count_bends_with_the_nearest_segment() {
+        // Steep from 16 to 32, flat from 32 to 64 (a truth-limited error): 48 reads the
+        // flat segment, 20 the steep one.
+        let measured = [(16.0, 0.4), (32.0, 0.2), (64.0, 0.2)];
+        assert!((error_at_samples(&measured, 48.0) - 0.2).abs() < 1e-12);
+        let at20 = error_at_samples(&measured, 20.0);
+        assert!((at20 - 0.4 * (16.0f64 / 20.0)).abs() < 1e-12, "{at20}");
+    }
+
+    #[test]
+    fn one_measured_count_gives_monte_carlos_rate_and_none_gives_nan() {
+        let e = error_at_samples(&[(16.0, 0.2)], 64.0);
+        assert!((e - 0.1).abs() < 1e-12, "{e}");
+        assert!(error_at_samples(&[], 64.0).is_nan());
+    }
 
     #[test]
     fn a_public_scene_gets_the_largest_power_of_two_that_fits_its_reference_time() {
