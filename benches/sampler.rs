@@ -5,10 +5,11 @@
 //! for each sampler against the independent one: ≤ 0.8 on every bundled scene and on
 //! the corpus median, at every sample count, and no scene worse by more than 2 %.
 //!
-//! Each sampler's render times give its cost per sample on the scene (all its renders'
-//! seconds ÷ their samples), and from that its error at *equal time* beside the first
-//! sampler's: read off the straight line, in log–log, through its two nearest measured
-//! counts, at the count it could have traced in the first sampler's time.
+//! Each sampler's render times (its paths', not the tracer's build) give its cost per
+//! sample on the scene (all its renders' seconds ÷ their samples), and from that its
+//! error at *equal time* beside the first sampler's: read off the straight line, in
+//! log–log, through its two nearest measured counts, at the count it could have traced
+//! in the first sampler's time.
 //!
 //! The truth is two renders of independent seeds, neither the compared renders' (Sobol,
 //! half the truth's samples each, cached like `glimpse bench`'s truths); FLIP between
@@ -140,15 +141,19 @@ impl SceneErrors {
     }
 }
 
-fn render(scene: &Scene, kind: SamplerKind, spp: u32, seed: u64) -> LinearImage {
+/// A render of `scene` with `kind`'s samples, and the seconds its paths took (the tracer's
+/// build, the same for every sampler, left out).
+fn render(scene: &Scene, kind: SamplerKind, spp: u32, seed: u64) -> (LinearImage, f64) {
     let mut s = scene.clone();
     s.render.sampler = kind;
     // As a user declaring `spp` gets it: the z-ordered sampler lays its blocks out for
     // the declared count.
     s.render.samples_per_pixel = spp;
     let t = PathTracer::new(&s);
-    tracer::render_reference_with(&t, Some((spp, seed)), &CancelToken::new(), &|_, _| {})
-        .expect("never cancelled")
+    let start = Instant::now();
+    let img = tracer::render_reference_with(&t, Some((spp, seed)), &CancelToken::new(), &|_, _| {})
+        .expect("never cancelled");
+    (img, start.elapsed().as_secs_f64())
 }
 
 /// The truth (mean of two cached halves of independent seeds) and FLIP between its halves.
@@ -193,9 +198,8 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
             .iter()
             .zip(&mut seconds)
             .map(|(&kind, s)| {
-                let start = Instant::now();
-                let img = render(scene, kind, spp, scene.render.seed);
-                *s += start.elapsed().as_secs_f64();
+                let (img, secs) = render(scene, kind, spp, scene.render.seed);
+                *s += secs;
                 finish(img)
             })
             .collect();
