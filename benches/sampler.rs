@@ -118,11 +118,12 @@ fn options() -> Options {
 }
 
 /// One scene's errors: per sample count, one per sampler; each sampler's seconds per
-/// sample over all its renders of the scene; and the truth's own error.
+/// sample per pixel over all its renders of the scene (only ever compared between
+/// samplers); and the truth's own error.
 struct SceneErrors {
     name: String,
     flips: Vec<Vec<f64>>,
-    seconds_per_sample: Vec<f64>,
+    seconds_per_spp: Vec<f64>,
     truth_halves: f64,
 }
 
@@ -131,7 +132,7 @@ impl SceneErrors {
     /// `j`'s error ([`bench::error_at_samples`]) at `spp[k]` × (the baseline's cost per
     /// sample ÷ `j`'s).
     fn equal_time_ratio(&self, spp: &[u32], j: usize, k: usize) -> f64 {
-        let at = f64::from(spp[k]) * self.seconds_per_sample[0] / self.seconds_per_sample[j];
+        let at = f64::from(spp[k]) * self.seconds_per_spp[0] / self.seconds_per_spp[j];
         let measured: Vec<(f64, f64)> = spp
             .iter()
             .zip(&self.flips)
@@ -217,7 +218,7 @@ fn judge(loaded: &Loaded, o: &Options, crops: Option<&Path>) -> SceneErrors {
     SceneErrors {
         name: scene.name.clone(),
         flips,
-        seconds_per_sample: seconds.iter().map(|s| s / f64::from(samples)).collect(),
+        seconds_per_spp: seconds.iter().map(|s| s / f64::from(samples)).collect(),
         truth_halves,
     }
 }
@@ -293,9 +294,9 @@ fn print_row(e: &SceneErrors, spp: &[u32]) {
         cells.join(" | "),
         e.truth_halves
     );
-    let kinds = e.seconds_per_sample.len();
+    let kinds = e.seconds_per_spp.len();
     let cost: Vec<String> = (1..kinds)
-        .map(|j| format!("×{:.3}", e.seconds_per_sample[j] / e.seconds_per_sample[0]))
+        .map(|j| format!("×{:.3}", e.seconds_per_spp[j] / e.seconds_per_spp[0]))
         .collect();
     let equal_time: Vec<String> = (0..spp.len())
         .map(|k| {
@@ -313,22 +314,14 @@ fn print_row(e: &SceneErrors, spp: &[u32]) {
     );
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    bench::median(&mut v)
-}
-
 /// The largest of `v`; NaN when it is empty (no scene of that kind was judged).
 fn worst_of(v: &[f64]) -> f64 {
     v.iter().copied().fold(f64::NAN, f64::max)
 }
 
-/// The median of `v`; NaN when it is empty.
+/// The median of `v`; NaN when it is empty ([`bench::median`]).
 fn median_of(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        f64::NAN
-    } else {
-        median(v.to_vec())
-    }
+    bench::median(&mut v.to_vec())
 }
 
 fn main() {
