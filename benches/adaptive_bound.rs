@@ -40,7 +40,7 @@ use std::time::Instant;
 
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
-use glimpse::denoise::{Aux, Denoiser, Quality};
+use glimpse::denoise::{Aux, Denoiser, Quality, Run};
 use glimpse::metric::MetricParams;
 use glimpse::progressive::adaptive::estimate::{self, Filter};
 use glimpse::progressive::adaptive::pixels::Pixels;
@@ -113,6 +113,14 @@ struct Bench<'a> {
     truth: LinearImage,
 }
 
+/// A denoise at `quality` and the scene's display.
+fn scene_run(scene: &Scene, quality: Quality) -> Run {
+    Run {
+        input_scale: denoise_input_scale(scene),
+        ..Run::new(quality)
+    }
+}
+
 impl Bench<'_> {
     fn denoise(&self, img: &LinearImage, quality: Quality) -> LinearImage {
         let aux = Aux {
@@ -121,7 +129,7 @@ impl Bench<'_> {
             clean: true,
         };
         self.denoiser
-            .denoise(img, Some(&aux), quality, denoise_input_scale(self.scene))
+            .denoise(img, Some(&aux), &scene_run(self.scene, quality))
             .expect("the denoiser runs")
     }
 
@@ -234,7 +242,7 @@ fn predicted(b: &Bench, px: &Pixels) -> (Vec<f64>, f64) {
     let filter = Filter::Denoised {
         denoiser: b.denoiser,
         aux: b.aux.clone(),
-        input_scale: denoise_input_scale(b.scene),
+        run: scene_run(b.scene, Quality::Fast),
     };
     let (h0, h1) = px.halves();
     let pic = estimate::picture((&h0, &h1), &filter, Quality::Fast).expect("denoiser");

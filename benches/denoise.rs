@@ -8,7 +8,7 @@
 //! (about 4 minutes on 2 cores).
 
 use criterion::{criterion_group, BenchmarkId, Criterion};
-use glimpse::denoise::{Aux, Denoiser, Quality};
+use glimpse::denoise::{Aux, Denoiser, Quality, Run};
 use glimpse::raster::{LinearImage, Rgb};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg32;
@@ -55,7 +55,7 @@ fn denoise(c: &mut Criterion) {
                 group.bench_with_input(id, &aux, |b, aux| {
                     b.iter(|| {
                         denoiser
-                            .denoise(black_box(&color), aux.as_ref(), quality, None)
+                            .denoise(black_box(&color), aux.as_ref(), &Run::new(quality))
                             .expect("denoised")
                     });
                 });

@@ -42,7 +42,7 @@ use std::time::Instant;
 
 use glimpse::bench::{self, corpus, flip, truth, BenchConfig, Loaded};
 use glimpse::cancel::CancelToken;
-use glimpse::denoise::{Denoiser, Quality};
+use glimpse::denoise::{Denoiser, Quality, Run};
 use glimpse::progressive::adaptive::estimate::Filter;
 use glimpse::progressive::denoise_input_scale;
 use glimpse::raster::{codec::to_display_rgb8, LinearImage};
@@ -234,7 +234,10 @@ fn filter_for<'a>(scene: &Scene, o: &Options) -> Filter<'a> {
         denoiser: Denoiser::shared().unwrap_or_else(|e| panic!("SAMPLER_DENOISE: {e}")),
         aux: tracer::aux::aux_maps(&PathTracer::new(scene), &CancelToken::new())
             .expect("never cancelled"),
-        input_scale: denoise_input_scale(scene),
+        run: Run {
+            input_scale: denoise_input_scale(scene),
+            ..Run::new(Quality::High)
+        },
     }
 }
 

@@ -420,13 +420,14 @@ async fn healthz_says_whether_the_node_reaches_its_database() {
 /// Renders nothing until it is cancelled (a render long enough to lose its lease in).
 fn until_cancelled(
     _scene: glimpse::scene::Scene,
+    _opts: &glimpse::progressive::RenderOptions,
     _on_frame: &mut dyn FnMut(&glimpse::progressive::Frame),
     cancel: &glimpse::cancel::CancelToken,
-) -> Result<glimpse::progressive::Frame, glimpse::cancel::Cancelled> {
+) -> Result<glimpse::progressive::Frame, glimpse::progressive::RenderError> {
     while !cancel.is_cancelled() {
         std::thread::sleep(Duration::from_millis(5));
     }
-    Err(glimpse::cancel::Cancelled)
+    Err(glimpse::progressive::RenderError::Cancelled)
 }
 
 const SPHERE: &str = r#"{"version": 1, "image": {"width": 8, "height": 6},
@@ -453,6 +454,7 @@ async fn a_worker_that_lost_its_lease_stops_and_writes_nothing() {
         name: Some("n1".to_owned()),
         workers: 1,
         lease: Duration::from_secs(1),
+        job_memory: glimpse::service::jobs::DEFAULT_JOB_MEMORY,
     };
     let jobs = Jobs::start_with(
         store.clone(),
@@ -559,6 +561,7 @@ async fn a_stale_attempt_writing_its_final_image_late_never_replaces_the_owners(
         name: Some("owner".to_owned()),
         workers: 1,
         lease: Duration::from_secs(1),
+        job_memory: glimpse::service::jobs::DEFAULT_JOB_MEMORY,
     };
     let jobs = Jobs::start_with(
         store.clone(),

@@ -223,3 +223,38 @@ async fn uploads_render_and_bad_bundles_get_one_clear_4xx() {
     let r = c.get(format!("{base}/healthz")).send().await.unwrap();
     assert_eq!(r.status(), 200);
 }
+
+/// Every render setting an upload's query may carry is applied to the imported document
+/// (none ignored without a word), and a bad value is a 400 naming the parameter.
+#[tokio::test]
+async fn an_uploads_query_sets_denoise_and_sampler_or_is_refused() {
+    let data = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _srv = common::spawn(data.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    let upload = |query: &str| {
+        c.post(format!("{base}/v1/jobs?width=16&height=16&{query}"))
+            .header("content-type", "model/gltf-binary")
+            .body(glb(3))
+            .send()
+    };
+    let r = upload("denoise=false&sampler=zsobol&mode=reference")
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 201);
+    let id = r.json::<serde_json::Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let doc = common::get_json(&c, &format!("{base}/v1/jobs/{id}/scene")).await;
+    assert_eq!(doc["render"]["denoise"], false, "{doc}");
+    assert_eq!(doc["render"]["sampler"], "zsobol", "{doc}");
+    for (query, path) in [("denoise=maybe", "denoise"), ("sampler=halton", "sampler")] {
+        let r = upload(query).await.unwrap();
+        assert_eq!(r.status(), 400, "{query}");
+        let v: serde_json::Value = r.json().await.unwrap();
+        assert_eq!(v["error"]["code"], "invalid_parameter", "{v}");
+        assert_eq!(v["error"]["path"], path, "{v}");
+    }
+}

@@ -189,9 +189,21 @@ fn with_the_denoiser_every_pass_is_denoised_and_closer_to_the_truth_than_the_ref
         last.stats.samples_traced,
         96 * 72 * 64
     );
-    // Asked not to denoise, the same mode keeps its passes raw and says so.
+    // Asked not to denoise, the same mode keeps its passes raw and says so, and spends
+    // no time denoising.
     let raw = run(&s, &raw_adaptive()).0;
     assert!(!raw.stats.denoised);
+    assert_eq!(raw.stats.denoise_ms, 0.0, "nothing was denoised");
+    // Each pass says what its tracing and judging took.
+    for stats in [&last.stats, &raw.stats] {
+        let passes = &stats.per_iteration;
+        assert!(passes.iter().all(|p| p.trace_ms > 0.0), "{passes:?}");
+        assert!(passes[0].metric_ms > 0.0, "{passes:?}");
+        let traced: f64 = passes.iter().map(|p| p.trace_ms).sum();
+        let judged: f64 = passes.iter().map(|p| p.metric_ms).sum();
+        assert!((traced - stats.trace_ms).abs() < 1e-6 * stats.trace_ms.max(1.0));
+        assert!((judged - stats.metric_ms).abs() < 1e-6 * stats.metric_ms.max(1.0));
+    }
 }
 
 #[test]

@@ -4,8 +4,8 @@
 //! pixel budget, and dark scenes costing less.
 
 use glam::Vec3;
-use glimpse::cancel::{CancelToken, Cancelled};
-use glimpse::progressive::{render, ClassCell, Frame, RenderOptions};
+use glimpse::cancel::CancelToken;
+use glimpse::progressive::{render, ClassCell, Frame, RenderError, RenderOptions};
 use glimpse::raster::{PixelCoord, Rgb};
 use glimpse::scene::{Camera, ObjectId, RenderMode, Scene};
 use glimpse::tracer::{fixtures, render_reference, PixelOracle};
@@ -254,7 +254,7 @@ fn cancelling_from_the_frame_callback_stops_the_render() {
         },
         &cancel,
     );
-    assert_eq!(r.err(), Some(Cancelled));
+    assert!(matches!(r, Err(RenderError::Cancelled)), "{r:?}");
     assert_eq!(n, 1, "no frame after the cancel");
 }
 

@@ -210,12 +210,65 @@ fn bad_flags_and_bad_scenes_are_one_clear_error() {
         (vec!["--output", "o.png", "--max-time", "soon"], "time"),
         (vec!["--output", "o.png", "--max-time", "1e9"], "time"),
         (vec!["--output", "o.png", "--mode", "fast"], "unknown mode"),
+        (vec!["--output", "o.png", "--spp", "0"], "--spp"),
+        (
+            vec!["--output", "o.png", "--denoise", "--no-denoise"],
+            "cannot be used with",
+        ),
+        (
+            vec![
+                "--output",
+                "o.png",
+                "--mode",
+                "adaptive",
+                "--no-denoise",
+                "--max-samples",
+                "1",
+            ],
+            "fewer than one path per pixel",
+        ),
+        (
+            vec![
+                "--output",
+                "o.png",
+                "--mode",
+                "adaptive",
+                "--no-denoise",
+                "--max-samples",
+                "0",
+            ],
+            "fewer than one path per pixel",
+        ),
+        (
+            vec!["--output", "o.png", "--size", "100000x100000"],
+            "larger than the command line renders",
+        ),
+        (
+            vec![
+                "--output",
+                "o.png",
+                "--size",
+                "8192x8192",
+                "--spp",
+                "100000",
+            ],
+            "more than the command line traces",
+        ),
     ] {
         let o = glimpse(&d.path, &args);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{args:?} was accepted");
+        // 1: refused by Glimpse; 2: by the flag parser. Never an abort (134).
+        assert!(
+            matches!(o.status.code(), Some(1 | 2)),
+            "{args:?}: a refusal, not an abort: {err}"
+        );
         assert!(err.contains(needle), "{args:?}: {err}");
         assert!(!err.contains("panicked"), "{args:?}: {err}");
+        assert!(
+            err.lines().filter(|l| !l.trim().is_empty()).count() <= 4,
+            "{args:?}: {err}"
+        );
     }
     std::fs::write(
         d.path.join("scene.json"),

@@ -171,3 +171,90 @@ async fn a_worker_without_the_library_fails_a_denoising_job_saying_why() {
     let msg = job["error"]["message"].as_str().unwrap();
     assert!(msg.contains("bash scripts/oidn.sh"), "{msg}");
 }
+
+/// Starts a job of `scene`; when it runs, waits `after` and cancels it: the job must end
+/// `cancelled` (never `succeeded`, whatever phase the cancel met) and free its worker at
+/// once. Returns the time from the cancel's answer to the job's end, or `None` when the
+/// job had already finished (409: the cancel came too late to test anything).
+async fn cancel_after(
+    c: &reqwest::Client,
+    base: &str,
+    scene: &serde_json::Value,
+    after: Duration,
+) -> Option<Duration> {
+    let id = common::submit(c, base, scene).await;
+    common::wait_states(c, base, &id, &["running"], Duration::from_secs(60)).await;
+    tokio::time::sleep(after).await;
+    let r = c
+        .post(format!("{base}/v1/jobs/{id}/cancel"))
+        .send()
+        .await
+        .unwrap();
+    let asked = tokio::time::Instant::now();
+    if r.status() == 409 {
+        return None;
+    }
+    assert_eq!(r.status(), 202, "cancel refused");
+    let j = common::wait_states(
+        c,
+        base,
+        &id,
+        &["cancelled", "succeeded", "failed"],
+        Duration::from_secs(60),
+    )
+    .await;
+    let took = asked.elapsed();
+    assert_eq!(
+        j["state"], "cancelled",
+        "a cancel after {after:?} was lost: {j}"
+    );
+    Some(took)
+}
+
+/// Cancels at every phase of a denoising render (tracing, the guides, the denoise itself)
+/// in the reference mode with `denoise` and in adaptive mode: each ends `cancelled`, its
+/// worker free within a fraction of a second (the denoiser is stopped from its progress
+/// monitor, and a cancel that comes as the render ends wins over it).
+#[tokio::test]
+async fn a_cancel_ends_a_denoising_job_at_any_phase() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _server = common::spawn(dir.path(), port, None, &[], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    for mode in ["reference", "adaptive"] {
+        let mut scene = common::sphere_scene("cancel", 768, 768, mode, 2, 1);
+        scene["render"]["denoise"] = serde_json::json!(true);
+        // Its whole length first, then cancels spread over it.
+        let id = common::submit(&c, &base, &scene).await;
+        let done =
+            common::wait_states(&c, &base, &id, &["succeeded"], Duration::from_secs(120)).await;
+        let stats = &done["stats"];
+        let total = stats["total_ms"].as_f64().unwrap();
+        let denoise = stats["denoise_ms"].as_f64().unwrap();
+        assert!(denoise > 0.0, "{mode}: {stats}");
+        // Into the last denoise (its middle and near its end), then earlier phases.
+        let mut took = Vec::new();
+        for at in [
+            total - denoise / 2.0,
+            total - denoise / 8.0,
+            total / 3.0,
+            total / 10.0,
+        ] {
+            let after = Duration::from_secs_f64(at.max(0.0) / 1e3);
+            took.extend(cancel_after(&c, &base, &scene, after).await);
+        }
+        let worst = took.iter().max().copied().unwrap_or_default();
+        eprintln!(
+            "{mode}: {total:.0} ms in all, {denoise:.0} ms denoising; {} cancels landed, slowest {worst:?}",
+            took.len()
+        );
+        assert!(took.len() >= 3, "{mode}: too few cancels landed to judge");
+        // The job's end as a poller sees it: the worker's own delay is measured apart
+        // (docs/measurements.md); this bounds it on a loaded machine.
+        assert!(
+            worst < Duration::from_secs(2),
+            "{mode}: a cancel took {worst:?}"
+        );
+    }
+}

@@ -10,7 +10,7 @@ use super::flip::flip;
 use super::judge::{ratio, Case};
 use super::objects::{object_colours, worst_ratio};
 use super::{median, ms};
-use crate::denoise::{Aux, Denoiser, Quality};
+use crate::denoise::{Aux, Denoiser, Quality, Run};
 use crate::progressive::{self, uniform, RenderOptions};
 use crate::raster::LinearImage;
 use crate::scene::{RenderMode, Scene};
@@ -99,14 +99,17 @@ pub fn judge(
     let t = Instant::now();
     let aux = tracer::aux::aux_maps(case.tracer, case.cancel)?;
     let aux_ms = ms(t);
-    let scale = progressive::denoise_input_scale(scene);
+    let run = Run {
+        input_scale: progressive::denoise_input_scale(scene),
+        ..Run::new(Quality::High)
+    };
     let denoise = |img: &LinearImage| {
         let a = Aux {
             albedo: &aux.albedo,
             normal: &aux.normal,
             clean: true,
         };
-        denoiser.denoise(img, Some(&a), Quality::High, scale)
+        denoiser.denoise(img, Some(&a), &run)
     };
     let reference_oidn = denoise(reference)?;
     let oidn_ms = ms(t);

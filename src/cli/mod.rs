@@ -106,6 +106,11 @@ pub struct ServeArgs {
     /// Seconds a render may run before it is stopped and its job failed (`timeout`).
     #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
     pub job_timeout: f64,
+    /// Gigabytes (10^9 bytes) one job may use: a submission whose size, mode and
+    /// denoiser would need more gets 422 over_limit, and the denoiser works in tiles
+    /// within what a job leaves of it.
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_MEMORY as f64 / 1e9, value_name = "GB", value_parser = positive_gb)]
+    pub max_job_memory: f64,
     /// A host name (besides its addresses and `localhost`) by which clients reach this
     /// server, accepted in `Host` and `Origin` when there is no token; repeatable.
     #[arg(long = "allowed-host", value_name = "NAME")]
@@ -150,6 +155,10 @@ pub struct WorkerArgs {
     /// Seconds a render may run before it is stopped and its job failed (`timeout`).
     #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_TIMEOUT.as_secs_f64(), value_parser = positive_seconds)]
     pub job_timeout: f64,
+    /// Gigabytes (10^9 bytes) one job may use: the denoiser works in tiles within what a
+    /// job leaves of it (submissions are checked by the API node's own budget).
+    #[arg(long, default_value_t = crate::service::jobs::DEFAULT_JOB_MEMORY as f64 / 1e9, value_name = "GB", value_parser = positive_gb)]
+    pub max_job_memory: f64,
     /// Serve this worker's `/healthz` and `/metrics` on IP:PORT (as an API node does);
     /// none by default. Use a loopback address unless the network is trusted.
     #[arg(long, value_name = "IP:PORT")]
@@ -309,6 +318,7 @@ fn serve(a: ServeArgs) -> anyhow::Result<()> {
         config.max_body_bytes = a.max_body;
         config.client_stall = std::time::Duration::from_secs_f64(a.client_stall);
         config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
+        config.job_memory = (a.max_job_memory * 1e9) as u64;
         config.allowed_hosts = a.allowed_hosts;
         config.retention = crate::service::retention::Retention {
             max_jobs: (a.keep_jobs > 0).then_some(a.keep_jobs),
@@ -364,6 +374,7 @@ fn worker(a: WorkerArgs) -> anyhow::Result<()> {
     config.node_name = a.name;
     config.lease = std::time::Duration::from_secs_f64(a.lease);
     config.job_timeout = std::time::Duration::from_secs_f64(a.job_timeout);
+    config.job_memory = (a.max_job_memory * 1e9) as u64;
     config.allowed_hosts = a.allowed_hosts;
     let rt = tokio::runtime::Runtime::new()?;
     rt.block_on(async move {
@@ -416,6 +427,19 @@ fn positive_seconds(s: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("{s} s is outside (0, 86400]"))
+    }
+}
+
+/// Gigabytes of memory for `--max-job-memory`: at least 0.5 (the server itself and a
+/// small job need that much), at most 1 PB.
+fn positive_gb(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of gigabytes"))?;
+    if v.is_finite() && (0.5..=1e6).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{s} GB is outside [0.5, 1000000]"))
     }
 }
 

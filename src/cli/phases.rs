@@ -58,15 +58,26 @@ pub fn resident() -> Option<Resident> {
         .and_then(|s| parse_status(&s))
 }
 
+/// The memory this machine can give a new allocation without swapping (`MemAvailable`
+/// of `/proc/meminfo`), `None` where that is not known.
+#[must_use]
+pub fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    kib_field(&text, "MemAvailable:")
+}
+
+/// A `NAME:  1234 kB` line of a proc(5) file, in bytes.
+fn kib_field(text: &str, name: &str) -> Option<u64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name))
+        .and_then(|rest| rest.trim().strip_suffix("kB"))
+        .and_then(|n| n.trim().parse::<u64>().ok())
+        .map(|kib| kib * 1024)
+}
+
 /// `VmRSS` and `VmHWM` of a `/proc/PID/status` text (proc(5): values in kB, i.e. KiB).
 fn parse_status(text: &str) -> Option<Resident> {
-    let field = |name: &str| {
-        text.lines()
-            .find_map(|l| l.strip_prefix(name))
-            .and_then(|rest| rest.trim().strip_suffix("kB"))
-            .and_then(|n| n.trim().parse::<u64>().ok())
-            .map(|kib| kib * 1024)
-    };
+    let field = |name: &str| kib_field(text, name);
     Some(Resident {
         now_bytes: field("VmRSS:")?,
         peak_bytes: field("VmHWM:")?,

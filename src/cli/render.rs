@@ -48,8 +48,8 @@ pub struct RenderArgs {
     /// distance and classes are one flat colour and the earlier ones show the method.
     #[arg(long, value_name = "DIR")]
     pub layers: Option<PathBuf>,
-    /// Override `render.samples_per_pixel`.
-    #[arg(long)]
+    /// Override `render.samples_per_pixel` (at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
     /// Override `render.seed`.
     #[arg(long)]
@@ -81,12 +81,13 @@ pub struct RenderArgs {
     /// Denoise the picture with Intel Open Image Denoise (every pass in adaptive mode,
     /// the last frame in the others). Default: the scene's `render.denoise`, which is on
     /// in adaptive mode only.
-    #[arg(long, overrides_with = "no_denoise")]
+    #[arg(long, conflicts_with = "no_denoise")]
     pub denoise: bool,
     /// Do not denoise, whatever the scene says.
     #[arg(long)]
     pub no_denoise: bool,
-    /// Adaptive mode: stop after tracing this many paths over the image.
+    /// Adaptive mode: stop after tracing this many paths over the image (at least one
+    /// per pixel: the first pass traces every pixel).
     #[arg(long, value_name = "N")]
     pub max_samples: Option<u64>,
 }
@@ -215,6 +216,7 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     let mut phases = Phases::default();
     let t = Instant::now();
     let mut scene = load_scene(a)?;
+    let opts = render_options(a, &scene)?;
     phases.load_ms = ms_since(t);
     crate::service::trim::release_free_memory();
     let loaded = phases::resident();
@@ -228,7 +230,6 @@ pub fn run(a: &RenderArgs) -> anyhow::Result<()> {
     scene.release_geometry();
     crate::service::trim::release_free_memory();
     phases.memory.built_bytes = phases::resident().map(|r| r.now_bytes);
-    let opts = render_options(a, &scene);
     // Asked before any work: a render that cannot denoise as asked is refused, not
     // returned noisy.
     crate::progressive::denoiser_for(&scene, &opts)?;
@@ -264,10 +265,20 @@ fn ms_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// The render options of the command line `a` for `scene`.
-fn render_options(a: &RenderArgs, scene: &crate::scene::Scene) -> RenderOptions {
+/// The render options of the command line `a` for `scene`, refused with one sentence
+/// when the render cannot be done as asked: fewer paths than pixels, or more memory than
+/// this machine has free. The denoiser's scratch is what the free memory leaves it.
+fn render_options(a: &RenderArgs, scene: &crate::scene::Scene) -> anyhow::Result<RenderOptions> {
     let pixels = u64::from(scene.width) * u64::from(scene.height);
-    RenderOptions {
+    if let Some(n) = a.max_samples.filter(|&n| n < pixels) {
+        anyhow::bail!(
+            "--max-samples {n} is fewer than one path per pixel: the image has {}×{} = {pixels} \
+             pixels and every one is traced at least once; give at least {pixels}",
+            scene.width,
+            scene.height
+        );
+    }
+    let mut opts = RenderOptions {
         mode: a.mode,
         max_pixels: a.max_pixels.map(|b| b.resolve(pixels)),
         max_time: a.max_time,
@@ -280,7 +291,23 @@ fn render_options(a: &RenderArgs, scene: &crate::scene::Scene) -> RenderOptions 
             None
         },
         max_samples: a.max_samples,
+        denoise_memory_mb: None,
+    };
+    let need = progressive::memory::MemoryEstimate::of(scene, &opts);
+    if let Some(free) = phases::available_memory() {
+        if need.least_bytes() > free {
+            anyhow::bail!(
+                "a {}×{} render needs about {} of memory and this machine has {} free; \
+                 render a smaller --size",
+                scene.width,
+                scene.height,
+                progressive::memory::human_bytes(need.least_bytes()),
+                progressive::memory::human_bytes(free)
+            );
+        }
+        opts.denoise_memory_mb = need.denoise_scratch_mb(free);
     }
+    Ok(opts)
 }
 
 /// The scene of `a`, its warnings printed, with the command line's overrides (samples
@@ -295,7 +322,7 @@ fn load_scene(a: &RenderArgs) -> anyhow::Result<crate::scene::Scene> {
         eprintln!("warning: {w}");
     }
     if let Some(spp) = a.spp {
-        scene.render.samples_per_pixel = spp.max(1);
+        scene.render.samples_per_pixel = spp;
     }
     if let Some(seed) = a.seed {
         scene.render.seed = seed;
@@ -307,7 +334,34 @@ fn load_scene(a: &RenderArgs) -> anyhow::Result<crate::scene::Scene> {
     if let Some(t0) = a.t0 {
         scene.progressive.t0 = t0;
     }
+    within_limits(&scene, &Limits::command_line())?;
     Ok(scene)
+}
+
+/// The command line's overrides of size and samples held to the limits a document is
+/// (a 100000×100000 `--size` must be refused, not abort in an allocation).
+fn within_limits(scene: &crate::scene::Scene, l: &Limits) -> anyhow::Result<()> {
+    let (w, h) = (u64::from(scene.width), u64::from(scene.height));
+    let pixels = w * h;
+    if w > u64::from(l.max_width) || h > u64::from(l.max_height) || pixels > l.max_pixels {
+        anyhow::bail!(
+            "{w}×{h} is larger than the command line renders: at most {}×{} and {} pixels",
+            l.max_width,
+            l.max_height,
+            l.max_pixels
+        );
+    }
+    let spp = u64::from(scene.render.samples_per_pixel);
+    if spp > u64::from(l.max_samples_per_pixel) || spp.saturating_mul(pixels) > l.max_sample_budget
+    {
+        anyhow::bail!(
+            "{spp} samples per pixel × {pixels} pixels is more than the command line traces: \
+             at most {} samples per pixel and {} samples in all",
+            l.max_samples_per_pixel,
+            l.max_sample_budget
+        );
+    }
+    Ok(())
 }
 
 /// Renders `scene` with a progress bar on the terminal (the frame's line and ETA, or the

@@ -28,6 +28,10 @@ pub(super) const QUALITY_FAST: c_int = 4;
 pub(super) const QUALITY_BALANCED: c_int = 5;
 pub(super) const QUALITY_HIGH: c_int = 6;
 pub(super) const ERROR_NONE: c_int = 0;
+pub(super) const ERROR_CANCELLED: c_int = 6;
+
+/// `OIDNProgressMonitorFunction`: called as the filter executes; `false` aborts it.
+pub(super) type ProgressMonitor = unsafe extern "C" fn(*mut c_void, f64) -> bool;
 
 /// The functions of `oidn.h` that Glimpse calls, resolved from a loaded library. Each
 /// pointer is valid while `_libraries` stays loaded, which is as long as `Api` lives.
@@ -55,6 +59,8 @@ pub(super) struct Api {
     pub set_filter_bool: unsafe extern "C" fn(FilterHandle, *const c_char, bool),
     pub set_filter_int: unsafe extern "C" fn(FilterHandle, *const c_char, c_int),
     pub set_filter_float: unsafe extern "C" fn(FilterHandle, *const c_char, f32),
+    pub set_filter_progress_monitor:
+        unsafe extern "C" fn(FilterHandle, Option<ProgressMonitor>, *mut c_void),
     pub commit_filter: unsafe extern "C" fn(FilterHandle),
     pub execute_filter: unsafe extern "C" fn(FilterHandle),
     pub release_filter: unsafe extern "C" fn(FilterHandle),
@@ -202,6 +208,7 @@ impl Api {
                 set_filter_bool: *lib.get(b"oidnSetFilterBool\0")?,
                 set_filter_int: *lib.get(b"oidnSetFilterInt\0")?,
                 set_filter_float: *lib.get(b"oidnSetFilterFloat\0")?,
+                set_filter_progress_monitor: *lib.get(b"oidnSetFilterProgressMonitorFunction\0")?,
                 commit_filter: *lib.get(b"oidnCommitFilter\0")?,
                 execute_filter: *lib.get(b"oidnExecuteFilter\0")?,
                 release_filter: *lib.get(b"oidnReleaseFilter\0")?,

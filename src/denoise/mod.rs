@@ -18,8 +18,9 @@ mod tests;
 
 use std::ffi::{c_char, c_void, CStr};
 use std::path::Path;
-use std::sync::{Mutex, OnceLock, PoisonError};
+use std::sync::{Mutex, MutexGuard, OnceLock, PoisonError, TryLockError};
 
+use crate::cancel::CancelToken;
 use crate::raster::{LinearImage, Rgb};
 use library::{Api, DeviceHandle, FilterHandle, SearchPlan};
 
@@ -39,12 +40,52 @@ pub const MAX_RADIANCE: f32 = 1.0e6;
 /// images are mirrored out to this size first and the result cropped back.
 const MIN_SIDE: u32 = 32;
 
+/// The longest side handed to OIDN: it refuses a 100000-pixel side ("image size is too
+/// large") and took 65536; longer images are denoised in strips.
+const MAX_SIDE: u32 = 32768;
+
+/// Context on each side of a strip: more than the network's receptive field, so a strip's
+/// kept middle is what one run over the whole image would give. Strips start on
+/// multiples of 16 (this and [`MAX_SIDE`] are), the grid of the network's downsampling:
+/// a run shifted off it gives a (slightly) different picture.
+const STRIP_OVERLAP: u32 = 256;
+
 /// OIDN's `quality` parameter: a streamed frame can take `Fast`, the final one `High`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Quality {
     Fast,
     Balanced,
     High,
+}
+
+/// How one denoise runs, besides its images.
+#[derive(Clone, Debug)]
+pub struct Run {
+    pub quality: Quality,
+    /// Multiplies the colour so that 1.0 means 100 cd/m² (OIDN's HDR convention); `None`
+    /// lets OIDN pick it per image.
+    pub input_scale: Option<f32>,
+    /// Aborts the filter from OIDN's progress monitor, which it calls between the pieces
+    /// of its work: a cancel ends even a 4096² denoise within a fraction of a second.
+    pub cancel: CancelToken,
+    /// OIDN's `maxMemoryMB`: a filter that would need more scratch memory works in
+    /// overlapping tiles instead (same picture up to the tiles' seams, api.md), so that a
+    /// job's memory does not grow with its image past what the operator allows. `None`
+    /// is OIDN's own default, which grows with the image (≈ 0.8 KB a pixel measured).
+    pub max_memory_mb: Option<u32>,
+}
+
+impl Run {
+    /// At `quality`, OIDN's own scale and memory, never cancelled.
+    #[must_use]
+    pub fn new(quality: Quality) -> Self {
+        Self {
+            quality,
+            input_scale: None,
+            cancel: CancelToken::new(),
+            max_memory_mb: None,
+        }
+    }
 }
 
 /// The auxiliary images of the `RT` filter, the same size as the colour image.
@@ -86,6 +127,9 @@ pub enum DenoiseError {
     /// `input_scale` that is not a finite number above zero.
     #[error("input_scale must be a finite number above 0, got {0}")]
     InputScale(f32),
+    /// The run's cancel token fired (before, or while OIDN was executing).
+    #[error("cancelled")]
+    Cancelled,
 }
 
 /// An `OIDNDevice` handle. OIDN allows a device to be used from any thread, one call at a
@@ -104,11 +148,10 @@ pub struct Denoiser {
 }
 
 /// The parameters of one `RT` filter run.
-struct Params {
+struct Params<'a> {
     hdr: bool,
     clean_aux: bool,
-    quality: Quality,
-    input_scale: Option<f32>,
+    run: &'a Run,
 }
 
 impl Denoiser {
@@ -182,8 +225,7 @@ impl Denoiser {
         &self.api.path
     }
 
-    /// `color` denoised. `input_scale` multiplies the colour so that 1.0 means
-    /// 100 cd/m² (OIDN's HDR convention); `None` lets OIDN pick it per image.
+    /// `color` denoised as `run` says.
     ///
     /// With `aux`, albedo and normal guide the filter; `aux.clean` sets OIDN's `cleanAux`
     /// (only for noise-free images, else their noise survives: api.md). Non-finite or
@@ -193,10 +235,9 @@ impl Denoiser {
         &self,
         color: &LinearImage,
         aux: Option<&Aux<'_>>,
-        quality: Quality,
-        input_scale: Option<f32>,
+        run: &Run,
     ) -> Result<LinearImage, DenoiseError> {
-        if let Some(s) = input_scale {
+        if let Some(s) = run.input_scale {
             if !(s.is_finite() && s > 0.0) {
                 return Err(DenoiseError::InputScale(s));
             }
@@ -225,8 +266,7 @@ impl Denoiser {
         let params = Params {
             hdr: true,
             clean_aux: aux.is_some_and(|a| a.clean),
-            quality,
-            input_scale,
+            run,
         };
         let mut out = self.run(&inputs, &params)?;
         for p in out.pixels_mut() {
@@ -242,7 +282,7 @@ impl Denoiser {
         &self,
         albedo: &LinearImage,
         normal: &LinearImage,
-        quality: Quality,
+        run: &Run,
     ) -> Result<(LinearImage, LinearImage), DenoiseError> {
         if (albedo.width(), albedo.height()) != (normal.width(), normal.height()) {
             return Err(DenoiseError::SizeMismatch {
@@ -253,11 +293,14 @@ impl Denoiser {
         }
         let albedo = sanitized_albedo(albedo, albedo)?;
         let normal = sanitized_normal(normal, normal)?;
+        let run = Run {
+            input_scale: None,
+            ..run.clone()
+        };
         let params = Params {
             hdr: false,
             clean_aux: false,
-            quality,
-            input_scale: None,
+            run: &run,
         };
         let mut a = self.run(&[(c"albedo", &albedo)], &params)?;
         let mut n = self.run(&[(c"normal", &normal)], &params)?;
@@ -283,13 +326,17 @@ impl Denoiser {
     }
 
     /// One `RT` filter over `inputs` (all the same size, the first one's), into a new
-    /// image; an image with a side under [`MIN_SIDE`] is mirrored out to it first.
+    /// image; an image with a side under [`MIN_SIDE`] is mirrored out to it first, one
+    /// with a side over [`MAX_SIDE`] denoised in overlapping strips.
     fn run(
         &self,
         inputs: &[(&CStr, &LinearImage)],
         params: &Params,
     ) -> Result<LinearImage, DenoiseError> {
         let (w, h) = (inputs[0].1.width(), inputs[0].1.height());
+        if w > MAX_SIDE || h > MAX_SIDE {
+            return self.run_in_strips(inputs, params);
+        }
         if w == 0 || h == 0 || (w >= MIN_SIDE && h >= MIN_SIDE) {
             return self.run_exact(inputs, params);
         }
@@ -309,6 +356,61 @@ impl Denoiser {
         Ok(LinearImage::from_fn(w, h, |x, y| *out.get(x, y)))
     }
 
+    /// [`Self::run`] on strips across the longer side, each at most [`MAX_SIDE`] long
+    /// with [`STRIP_OVERLAP`] pixels of context on either side, of which only the middle
+    /// is kept: the network sees each kept pixel's neighbourhood as in one run.
+    fn run_in_strips(
+        &self,
+        inputs: &[(&CStr, &LinearImage)],
+        params: &Params,
+    ) -> Result<LinearImage, DenoiseError> {
+        let (w, h) = (inputs[0].1.width(), inputs[0].1.height());
+        let across_x = w >= h;
+        let long = if across_x { w } else { h };
+        let core = MAX_SIDE - 2 * STRIP_OVERLAP;
+        let mut out = LinearImage::filled(w, h, Rgb::ZERO);
+        for start in (0..long).step_by(core as usize) {
+            let end = (start + core).min(long);
+            let (from, to) = (
+                start.saturating_sub(STRIP_OVERLAP),
+                (end + STRIP_OVERLAP).min(long),
+            );
+            let cut = |image: &LinearImage| {
+                let (sw, sh) = if across_x {
+                    (to - from, h)
+                } else {
+                    (w, to - from)
+                };
+                LinearImage::from_fn(sw, sh, |x, y| {
+                    if across_x {
+                        *image.get(from + x, y)
+                    } else {
+                        *image.get(x, from + y)
+                    }
+                })
+            };
+            let strips: Vec<LinearImage> = inputs.iter().map(|(_, image)| cut(image)).collect();
+            let named: Vec<(&CStr, &LinearImage)> = inputs
+                .iter()
+                .zip(&strips)
+                .map(|((name, _), image)| (*name, image))
+                .collect();
+            let done = self.run(&named, params)?;
+            for i in start..end {
+                for j in 0..if across_x { h } else { w } {
+                    let (x, y) = if across_x { (i, j) } else { (j, i) };
+                    let (sx, sy) = if across_x {
+                        (i - from, j)
+                    } else {
+                        (j, i - from)
+                    };
+                    out.set(x, y, *done.get(sx, sy));
+                }
+            }
+        }
+        Ok(out)
+    }
+
     /// One `RT` filter run at the inputs' own size. A filter per call: creating and
     /// committing one costs little next to executing it (measured, see benches/denoise.rs).
     fn run_exact(
@@ -321,7 +423,11 @@ impl Denoiser {
         if out.is_empty() {
             return Ok(out);
         }
-        let device = self.device.lock().unwrap_or_else(PoisonError::into_inner);
+        let cancel = &params.run.cancel;
+        if cancel.is_cancelled() {
+            return Err(DenoiseError::Cancelled);
+        }
+        let device = self.lock_device(cancel)?;
         let api = &self.api;
         let (wu, hu, stride) = (w as usize, h as usize, std::mem::size_of::<Rgb>());
         // SAFETY: the images outlive the filter (released by `Filter`'s drop before this
@@ -359,11 +465,21 @@ impl Denoiser {
             (api.set_filter_int)(
                 filter.handle,
                 c"quality".as_ptr(),
-                quality_code(params.quality),
+                quality_code(params.run.quality),
             );
-            if let Some(scale) = params.input_scale {
+            if let Some(scale) = params.run.input_scale {
                 (api.set_filter_float)(filter.handle, c"inputScale".as_ptr(), scale);
             }
+            if let Some(mb) = params.run.max_memory_mb {
+                let mb = i32::try_from(mb).unwrap_or(i32::MAX);
+                (api.set_filter_int)(filter.handle, c"maxMemoryMB".as_ptr(), mb);
+            }
+            let token: *const CancelToken = cancel;
+            (api.set_filter_progress_monitor)(
+                filter.handle,
+                Some(keep_going),
+                token.cast_mut().cast(),
+            );
             (api.commit_filter)(filter.handle);
             self.check(device.0, &format!("committing the RT filter ({w}x{h})"))?;
             (api.execute_filter)(filter.handle);
@@ -372,7 +488,25 @@ impl Denoiser {
         Ok(out)
     }
 
-    /// OIDN's pending error on this thread, if any, as `DenoiseError::Library`.
+    /// The device, waited for while `cancel` has not fired: another job's denoise may
+    /// hold it for seconds, and a cancelled job must not wait for it.
+    fn lock_device(&self, cancel: &CancelToken) -> Result<MutexGuard<'_, Device>, DenoiseError> {
+        loop {
+            match self.device.try_lock() {
+                Ok(device) => return Ok(device),
+                Err(TryLockError::Poisoned(p)) => return Ok(p.into_inner()),
+                Err(TryLockError::WouldBlock) => {
+                    if cancel.is_cancelled() {
+                        return Err(DenoiseError::Cancelled);
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(2));
+                }
+            }
+        }
+    }
+
+    /// OIDN's pending error on this thread, if any, as `DenoiseError::Library`
+    /// (`Cancelled` when our progress monitor aborted the filter).
     ///
     /// # Safety
     /// `device` is null or a live device handle of `self.api`.
@@ -381,6 +515,9 @@ impl Denoiser {
         let code = (self.api.get_device_error)(device, &mut message);
         if code == library::ERROR_NONE {
             return Ok(());
+        }
+        if code == library::ERROR_CANCELLED {
+            return Err(DenoiseError::Cancelled);
         }
         let text = if message.is_null() {
             String::from("no message")
@@ -405,6 +542,15 @@ impl Drop for Denoiser {
             unsafe { (self.api.release_device)(device.0) };
         }
     }
+}
+
+/// OIDN's progress monitor: go on while the run's token has not fired.
+///
+/// # Safety
+/// `token` is the `CancelToken` `run_exact` passed, alive while the filter executes.
+unsafe extern "C" fn keep_going(token: *mut c_void, _done: f64) -> bool {
+    let cancel = &*token.cast::<CancelToken>().cast_const();
+    !cancel.is_cancelled()
 }
 
 /// Releases a filter on every path out of `Denoiser::run`.

@@ -53,7 +53,7 @@ fn noisy_constant_image_comes_back_near_the_constant() {
     let truth = flat(64, 64, Rgb::splat(0.5));
     let input = noisy(&truth, 0.3, 7);
     let out = denoiser()
-        .denoise(&input, None, Quality::High, None)
+        .denoise(&input, None, &Run::new(Quality::High))
         .unwrap();
     let (before, after) = (rmse(&input, &truth), rmse(&out, &truth));
     assert!(
@@ -86,7 +86,7 @@ fn nan_inf_and_huge_input_give_finite_output() {
     };
     for aux in [None, Some(&aux)] {
         for q in [Quality::Fast, Quality::Balanced, Quality::High] {
-            let out = denoiser().denoise(&input, aux, q, None).unwrap();
+            let out = denoiser().denoise(&input, aux, &Run::new(q)).unwrap();
             let bad = out
                 .pixels()
                 .iter()
@@ -104,7 +104,7 @@ fn one_infinite_pixel_does_not_blotch_the_picture() {
     let mut input = noisy(&flat(32, 32, Rgb::splat(0.5)), 0.1, 3);
     input.set(4, 4, Rgb::splat(f32::INFINITY));
     for q in [Quality::Fast, Quality::Balanced, Quality::High] {
-        let out = denoiser().denoise(&input, None, q, None).unwrap();
+        let out = denoiser().denoise(&input, None, &Run::new(q)).unwrap();
         let far = out.get(28, 28);
         assert!(
             (far - Rgb::splat(0.5)).abs().max_element() < 0.1,
@@ -125,7 +125,7 @@ fn aux_of_another_size_is_an_error_naming_both_sizes() {
             clean: true,
         };
         let e = denoiser()
-            .denoise(&color, Some(&aux), Quality::Fast, None)
+            .denoise(&color, Some(&aux), &Run::new(Quality::Fast))
             .unwrap_err();
         assert!(matches!(e, DenoiseError::SizeMismatch { .. }), "{e:?}");
         let text = e.to_string();
@@ -141,12 +141,26 @@ fn input_scale_must_be_positive_and_finite() {
     let color = flat(4, 4, Rgb::splat(0.5));
     for s in [0.0, -1.0, f32::NAN, f32::INFINITY] {
         let e = denoiser()
-            .denoise(&color, None, Quality::Fast, Some(s))
+            .denoise(
+                &color,
+                None,
+                &Run {
+                    input_scale: Some(s),
+                    ..Run::new(Quality::Fast)
+                },
+            )
             .unwrap_err();
         assert!(matches!(e, DenoiseError::InputScale(_)), "{s}: {e:?}");
     }
     let out = denoiser()
-        .denoise(&color, None, Quality::Fast, Some(0.01))
+        .denoise(
+            &color,
+            None,
+            &Run {
+                input_scale: Some(0.01),
+                ..Run::new(Quality::Fast)
+            },
+        )
         .unwrap();
     assert!((out.get(2, 2).x - 0.5).abs() < 0.1, "{}", out.get(2, 2));
 }
@@ -229,7 +243,7 @@ fn every_quality_runs_with_and_without_aux() {
         };
         for aux in [None, Some(&aux)] {
             for q in [Quality::Fast, Quality::Balanced, Quality::High] {
-                let out = denoiser().denoise(&input, aux, q, None).unwrap();
+                let out = denoiser().denoise(&input, aux, &Run::new(q)).unwrap();
                 assert_eq!((out.width(), out.height()), (48, 40));
                 assert!(
                     rmse(&out, &truth) < rmse(&input, &truth),
@@ -253,7 +267,7 @@ fn tiny_and_thin_images_work() {
         };
         for aux in [None, Some(&aux)] {
             let out = denoiser()
-                .denoise(&color, aux, Quality::High, None)
+                .denoise(&color, aux, &Run::new(Quality::High))
                 .unwrap_or_else(|e| panic!("{w}x{h}: {e}"));
             assert_eq!((out.width(), out.height()), (w, h));
             for p in out.pixels() {
@@ -284,10 +298,10 @@ fn clean_aux_beats_no_aux_on_edges() {
         clean: true,
     };
     let with = denoiser()
-        .denoise(&input, Some(&aux), Quality::High, None)
+        .denoise(&input, Some(&aux), &Run::new(Quality::High))
         .unwrap();
     let without = denoiser()
-        .denoise(&input, None, Quality::High, None)
+        .denoise(&input, None, &Run::new(Quality::High))
         .unwrap();
     let (e_with, e_without) = (rmse(&with, &truth), rmse(&without, &truth));
     assert!(
@@ -302,7 +316,7 @@ fn prefiltered_noisy_aux_stays_in_range_and_loses_its_noise() {
     let albedo = noisy(&albedo_truth, 0.2, 9);
     let normal = noisy(&flat(40, 40, Rgb::Z), 0.3, 10);
     let (a, n) = denoiser()
-        .prefilter_aux(&albedo, &normal, Quality::High)
+        .prefilter_aux(&albedo, &normal, &Run::new(Quality::High))
         .unwrap();
     assert!(rmse(&a, &albedo_truth) * 2.0 < rmse(&albedo, &albedo_truth));
     assert!(a
@@ -312,7 +326,7 @@ fn prefiltered_noisy_aux_stays_in_range_and_loses_its_noise() {
     assert!(n.pixels().iter().all(|p| p.abs().max_element() <= 1.0));
     let small = flat(4, 4, Rgb::Z);
     let e = denoiser()
-        .prefilter_aux(&albedo, &small, Quality::Fast)
+        .prefilter_aux(&albedo, &small, &Run::new(Quality::Fast))
         .unwrap_err();
     assert!(e.to_string().contains("4x4"), "{e}");
 }
@@ -322,4 +336,107 @@ fn mirror_reflects_into_range() {
     let got: Vec<u32> = (0..7).map(|i| mirror(i, 3)).collect();
     assert_eq!(got, [0, 1, 2, 2, 1, 0, 0]);
     assert!((0..40).all(|i| mirror(i, 1) == 0));
+}
+
+#[test]
+fn a_cancelled_run_stops_before_it_starts() {
+    let run = Run::new(Quality::Fast);
+    run.cancel.cancel();
+    let e = denoiser()
+        .denoise(&flat(64, 64, Rgb::splat(0.5)), None, &run)
+        .unwrap_err();
+    assert!(matches!(e, DenoiseError::Cancelled), "{e}");
+}
+
+/// A cancel while OIDN executes a large image ends the run within a fraction of a
+/// second (its progress monitor), not after the whole filter.
+#[test]
+fn a_cancel_during_a_large_denoise_ends_it_at_once() {
+    let input = noisy(&flat(1024, 1024, Rgb::splat(0.5)), 0.3, 11);
+    let run = Run::new(Quality::High);
+    let t = std::time::Instant::now();
+    denoiser().denoise(&input, None, &run).unwrap();
+    let whole = t.elapsed();
+    let cancel = run.cancel.clone();
+    let canceller = std::thread::spawn(move || {
+        std::thread::sleep(whole / 4);
+        let at = std::time::Instant::now();
+        cancel.cancel();
+        at
+    });
+    let e = denoiser().denoise(&input, None, &run).unwrap_err();
+    let ended = std::time::Instant::now();
+    let cancelled_at = canceller.join().unwrap();
+    assert!(matches!(e, DenoiseError::Cancelled), "{e}");
+    let late = ended.duration_since(cancelled_at);
+    assert!(
+        late < whole / 4 + std::time::Duration::from_millis(50),
+        "ended {late:?} after the cancel; the whole denoise takes {whole:?}"
+    );
+}
+
+/// With `max_memory_mb` OIDN works in overlapping tiles: the picture stays the untiled
+/// one's up to the seams.
+#[test]
+fn bounded_scratch_memory_gives_the_same_picture() {
+    let truth = LinearImage::from_fn(768, 512, |x, y| {
+        Rgb::new(x as f32 / 768.0, y as f32 / 512.0, 0.25)
+    });
+    let input = noisy(&truth, 0.2, 5);
+    let whole = denoiser()
+        .denoise(&input, None, &Run::new(Quality::High))
+        .unwrap();
+    let tiled = denoiser()
+        .denoise(
+            &input,
+            None,
+            &Run {
+                max_memory_mb: Some(64),
+                ..Run::new(Quality::High)
+            },
+        )
+        .unwrap();
+    let apart = rmse(&whole, &tiled);
+    assert!(apart < 0.01, "tiled differs by RMSE {apart}");
+    assert!(rmse(&tiled, &truth) * 2.0 < rmse(&input, &truth));
+}
+
+#[test]
+fn a_very_long_thin_image_is_denoised() {
+    let input = noisy(&flat(100_000, 1, Rgb::splat(0.5)), 0.2, 9);
+    let out = denoiser()
+        .denoise(&input, None, &Run::new(Quality::Fast))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((out.width(), out.height()), (100_000, 1));
+}
+
+/// Strips are stitched without seams: a picture split in two strips equals, in the
+/// strips' kept middles, the picture denoised whole.
+#[test]
+fn strips_join_without_seams() {
+    let truth = LinearImage::from_fn(MAX_SIDE + 500, 40, |x, y| {
+        Rgb::new((x % 97) as f32 / 97.0, y as f32 / 40.0, 0.3)
+    });
+    let input = noisy(&truth, 0.1, 13);
+    let d = denoiser();
+    // One scale for all: OIDN's automatic one is measured per image, so per strip.
+    let run = Run {
+        input_scale: Some(1.0),
+        ..Run::new(Quality::Fast)
+    };
+    let strips = d.denoise(&input, None, &run).unwrap();
+    // The same middle denoised from a window that never needed strips, on the same
+    // 16-pixel grid.
+    let from = MAX_SIDE - 2 * STRIP_OVERLAP - 1024;
+    let window = LinearImage::from_fn(2000, 40, |x, y| *input.get(from + x, y));
+    let direct = d.denoise(&window, None, &run).unwrap();
+    let mut worst = 0f32;
+    for x in 300..1700 {
+        for y in 0..40 {
+            let a = *strips.get(from + x, y);
+            let b = *direct.get(x, y);
+            worst = worst.max((a - b).abs().max_element());
+        }
+    }
+    assert!(worst < 0.02, "strips differ from one run by up to {worst}");
 }

@@ -356,6 +356,8 @@ pub struct UploadSettings {
     pub samples_per_pixel: Option<u64>,
     pub mode: Option<crate::scene::RenderMode>,
     pub seed: Option<u64>,
+    pub denoise: Option<bool>,
+    pub sampler: Option<crate::scene::SamplerKind>,
 }
 
 impl UploadSettings {
@@ -440,6 +442,12 @@ pub fn import_upload(
     }
     if let Some(s) = settings.seed {
         doc.render.seed = s;
+    }
+    if let Some(d) = settings.denoise {
+        doc.render.denoise = Some(d);
+    }
+    if let Some(s) = settings.sampler {
+        doc.render.sampler = s;
     }
     let text = serde_json::to_string(&doc).map_err(|e| {
         ImportError::invalid("", format!("cannot write the imported document: {e}"))

@@ -55,6 +55,7 @@ pub mod driver;
 pub mod eta;
 pub mod guo;
 pub mod layers;
+pub mod memory;
 pub mod mesh;
 pub mod noise;
 pub mod preview;
@@ -66,7 +67,7 @@ pub mod uniform;
 pub use stats::{IterationStats, RenderStats};
 
 use crate::cancel::{CancelToken, Cancelled};
-use crate::denoise::{DenoiseError, Denoiser, Quality};
+use crate::denoise::{DenoiseError, Denoiser, Quality, Run};
 use crate::raster::{Image, LinearImage};
 use crate::scene::{ObjectId, RenderMode, Scene};
 use crate::tracer::{self, PixelOracle};
@@ -203,6 +204,9 @@ pub struct RenderOptions {
     pub denoise: Option<bool>,
     /// Adaptive mode: stop once this many paths have been traced over the image.
     pub max_samples: Option<u64>,
+    /// The denoiser's scratch memory (OIDN's `maxMemoryMB`); `None` is OIDN's default,
+    /// which grows with the image ([`memory`]).
+    pub denoise_memory_mb: Option<u32>,
 }
 
 /// Whether a render of `scene` with `opts` denoises: the options, else the scene's
@@ -237,15 +241,42 @@ pub fn denoise_input_scale(scene: &Scene) -> Option<f32> {
     (s.is_finite() && s > 0.0).then_some(s)
 }
 
+/// Why a render returned no picture.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// The render's cancel token fired (frames already sent stand).
+    #[error("cancelled")]
+    Cancelled,
+    /// The render was asked to denoise and the denoiser failed (or is missing): a picture
+    /// that is not denoised is not what was asked for.
+    #[error("the picture could not be denoised: {0}")]
+    Denoise(DenoiseError),
+}
+
+impl From<Cancelled> for RenderError {
+    fn from(_: Cancelled) -> Self {
+        RenderError::Cancelled
+    }
+}
+
+impl From<DenoiseError> for RenderError {
+    fn from(e: DenoiseError) -> Self {
+        match e {
+            DenoiseError::Cancelled => RenderError::Cancelled,
+            e => RenderError::Denoise(e),
+        }
+    }
+}
+
 /// Renders `scene` with `oracle`, calling `on_frame` for every iteration.
-/// Returns the last frame, or `Cancelled` if `cancel` fired (frames already sent stand).
+/// Returns the last frame, or why there is none (frames already sent stand).
 pub fn render(
     scene: &Scene,
     oracle: &impl PixelOracle,
     opts: &RenderOptions,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
-) -> Result<Frame, Cancelled> {
+) -> Result<Frame, RenderError> {
     render_reporting(scene, oracle, opts, on_frame, &|_, _| {}, cancel)
 }
 
@@ -260,33 +291,30 @@ pub fn render_reporting(
     on_frame: &mut dyn FnMut(&Frame),
     on_pixels: &(dyn Fn(usize, usize) + Sync),
     cancel: &CancelToken,
-) -> Result<Frame, Cancelled> {
+) -> Result<Frame, RenderError> {
     let mode = opts.mode.unwrap_or(scene.render.mode);
-    let denoiser = match denoiser_for(scene, opts) {
-        Ok(d) => d,
-        Err(e) => {
-            // The command line and the service ask [`denoiser_for`] first and refuse;
-            // a library caller that did not is told here, and its frames say so.
-            tracing::warn!("this render was asked to denoise and cannot: {e}");
-            None
-        }
-    };
+    // The command line and the service ask [`denoiser_for`] before accepting the work;
+    // a library caller that did not is refused here, before anything is traced.
+    let denoiser = denoiser_for(scene, opts)?;
+    let run = denoise_run(scene, opts, cancel);
     if mode == RenderMode::Adaptive {
-        return render_adaptive(scene, oracle, opts, denoiser, on_frame, cancel);
+        let denoise = denoiser.map(|d| (d, run));
+        return render_adaptive(scene, oracle, opts, denoise, on_frame, cancel);
     }
     let Some(denoiser) = denoiser else {
         return render_mode(scene, oracle, opts, mode, on_frame, on_pixels, cancel);
     };
     // The last frame goes through the denoiser before anyone sees it.
-    let mut last: Option<Frame> = None;
+    let mut last: Option<Result<Frame, RenderError>> = None;
     let mut denoise_last = |f: &Frame| {
-        if f.last {
-            let d = denoise_frame(scene, oracle, denoiser, f, cancel);
-            on_frame(&d);
-            last = Some(d);
-        } else {
-            on_frame(f);
+        if !f.last {
+            return on_frame(f);
         }
+        let denoised = denoise_frame(oracle, denoiser, &run, f);
+        if let Ok(d) = &denoised {
+            on_frame(d);
+        }
+        last = Some(denoised);
     };
     let frame = render_mode(
         scene,
@@ -297,53 +325,53 @@ pub fn render_reporting(
         on_pixels,
         cancel,
     )?;
-    if cancel.is_cancelled() {
-        return Err(Cancelled);
+    cancel.check()?;
+    last.unwrap_or_else(|| denoise_frame(oracle, denoiser, &run, &frame))
+}
+
+/// How a render's denoises run: at the best quality, at the scene's display, stopped by
+/// the render's cancel, within the scratch memory the options allow.
+fn denoise_run(scene: &Scene, opts: &RenderOptions, cancel: &CancelToken) -> Run {
+    Run {
+        quality: Quality::High,
+        input_scale: denoise_input_scale(scene),
+        cancel: cancel.clone(),
+        max_memory_mb: opts.denoise_memory_mb,
     }
-    Ok(last.unwrap_or(frame))
 }
 
 /// `frame` with its picture denoised at the best quality, the auxiliary images traced
-/// for it; the frame as it was (and saying so) if the denoiser fails.
+/// for it.
 fn denoise_frame(
-    scene: &Scene,
     oracle: &impl PixelOracle,
     denoiser: &Denoiser,
+    run: &Run,
     frame: &Frame,
-    cancel: &CancelToken,
-) -> Frame {
+) -> Result<Frame, RenderError> {
     let t = Instant::now();
-    let Ok(aux) = tracer::aux::aux_maps(oracle, cancel) else {
-        return frame.clone();
-    };
     let filter = adaptive::estimate::Filter::Denoised {
         denoiser,
-        aux,
-        input_scale: denoise_input_scale(scene),
+        aux: tracer::aux::aux_maps(oracle, &run.cancel)?,
+        run: run.clone(),
     };
     let mut out = frame.clone();
-    match filter.apply(&frame.image, Quality::High) {
-        Ok(img) => {
-            out.image = img;
-            out.stats.denoised = true;
-        }
-        Err(e) => tracing::warn!("the denoiser failed, the picture is not denoised: {e}"),
-    }
+    out.image = filter.apply(&frame.image, Quality::High)?;
+    out.stats.denoised = true;
     let ms = t.elapsed().as_secs_f64() * 1e3;
     out.stats.denoise_ms += ms;
     out.stats.total_ms += ms;
-    out
+    Ok(out)
 }
 
-/// The adaptive mode ([`adaptive`]), denoising every pass when `denoiser` is given.
+/// The adaptive mode ([`adaptive`]), denoising every pass when `denoise` is given.
 fn render_adaptive(
     scene: &Scene,
     oracle: &impl PixelOracle,
     opts: &RenderOptions,
-    denoiser: Option<&Denoiser>,
+    denoise: Option<(&Denoiser, Run)>,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
-) -> Result<Frame, Cancelled> {
+) -> Result<Frame, RenderError> {
     let (w, h) = oracle.size();
     let p = &scene.progressive;
     let max_spp = scene.render.samples_per_pixel.max(1);
@@ -362,7 +390,6 @@ fn render_adaptive(
         },
     };
     let model = VisionModel::new(display_model(scene), w, h);
-    let denoise = denoiser.map(|d| (d, denoise_input_scale(scene)));
     adaptive::render(oracle, &settings, model, denoise, on_frame, cancel)
 }
 
@@ -375,10 +402,10 @@ fn render_mode(
     on_frame: &mut dyn FnMut(&Frame),
     on_pixels: &(dyn Fn(usize, usize) + Sync),
     cancel: &CancelToken,
-) -> Result<Frame, Cancelled> {
-    match mode {
-        RenderMode::Adaptive => render_adaptive(scene, oracle, opts, None, on_frame, cancel),
-        RenderMode::Reference => render_reference(scene, oracle, on_frame, on_pixels, cancel),
+) -> Result<Frame, RenderError> {
+    Ok(match mode {
+        RenderMode::Adaptive => render_adaptive(scene, oracle, opts, None, on_frame, cancel)?,
+        RenderMode::Reference => render_reference(scene, oracle, on_frame, on_pixels, cancel)?,
         RenderMode::Progressive => {
             let settings = settings(scene, opts, driver::Oracle::Perceptual);
             // The oracle's size is authoritative (it is what gets traced).
@@ -389,13 +416,13 @@ fn render_mode(
                 scene.progressive.epsilon,
                 scene.render.seed,
             );
-            driver::run_reporting(oracle, &settings, &mut judge, on_frame, on_pixels, cancel)
+            driver::run_reporting(oracle, &settings, &mut judge, on_frame, on_pixels, cancel)?
         }
         RenderMode::Guo => {
             let settings = settings(scene, opts, driver::Oracle::Guo);
-            driver::run_reporting(oracle, &settings, &mut NoJudge, on_frame, on_pixels, cancel)
+            driver::run_reporting(oracle, &settings, &mut NoJudge, on_frame, on_pixels, cancel)?
         }
-    }
+    })
 }
 
 /// The vision model's view of the scene's display (scene-format.md `display`): what the

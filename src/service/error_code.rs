@@ -51,6 +51,9 @@ pub enum ErrorCode {
     // The codes of a failed job's `error` (never an HTTP answer's).
     /// The render itself failed (a panic inside it, caught at the job's boundary).
     RenderFailed,
+    /// The job asked to be denoised and the denoiser failed on its picture: the job fails
+    /// with the denoiser's reason rather than end with a noisy picture.
+    DenoiseFailed,
     /// The render ran longer than `--job-timeout`.
     Timeout,
     /// Every allowed attempt ended with its worker gone (killed, crashed, or its lease
@@ -82,6 +85,7 @@ impl ErrorCode {
             ErrorCode::Forbidden => StatusCode::FORBIDDEN,
             ErrorCode::Internal
             | ErrorCode::RenderFailed
+            | ErrorCode::DenoiseFailed
             | ErrorCode::Timeout
             | ErrorCode::Poison => StatusCode::INTERNAL_SERVER_ERROR,
         }

@@ -206,7 +206,8 @@ pub(super) async fn charge_unpacked(
     acquire_budget(state, charge).await
 }
 
-/// Render settings of an upload from the query (`?spp=64&width=640&height=480&mode=...`).
+/// Render settings of an upload from the query (`?spp=64&width=640&height=480&mode=...`,
+/// `denoise=true|false`, `sampler=independent|sobol|zsobol`).
 pub(super) fn upload_settings(
     q: &HashMap<String, String>,
 ) -> Result<crate::import::UploadSettings, ApiError> {
@@ -237,12 +238,44 @@ pub(super) fn upload_settings(
             .at("mode"))
         }
     };
+    let denoise = match q.get("denoise").map(String::as_str) {
+        None => None,
+        Some("true") => Some(true),
+        Some("false") => Some(false),
+        Some(other) => {
+            return Err(ApiError::new(
+                ErrorCode::InvalidParameter,
+                format!("?denoise= must be true or false, got \"{}\"", clip(other)),
+            )
+            .at("denoise"))
+        }
+    };
+    let sampler = match q.get("sampler") {
+        None => None,
+        Some(s) => Some(
+            <crate::scene::SamplerKind as serde::Deserialize>::deserialize(
+                serde::de::value::StrDeserializer::<serde::de::value::Error>::new(s),
+            )
+            .map_err(|_| {
+                ApiError::new(
+                    ErrorCode::InvalidParameter,
+                    format!(
+                        "?sampler= must be independent, sobol or zsobol, got \"{}\"",
+                        clip(s)
+                    ),
+                )
+                .at("sampler")
+            })?,
+        ),
+    };
     Ok(crate::import::UploadSettings {
         width: num("width")?,
         height: num("height")?,
         samples_per_pixel: num("spp")?,
         mode,
         seed: num("seed")?,
+        denoise,
+        sampler,
     })
 }
 

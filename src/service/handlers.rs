@@ -120,6 +120,7 @@ pub(super) async fn create_job(
         )
         .at("render.denoise"));
     }
+    within_job_memory(&scene, st.jobs.job_memory())?;
     let chars = scene.name.chars().count();
     if chars > MAX_NAME_CHARS {
         return Err(ApiError::new(
@@ -186,6 +187,33 @@ async fn validate(
     })
     .await
     .map_err(|e| ApiError::internal("validating the scene", &e))
+}
+
+/// Refused now rather than killed later: a job whose size, mode and denoiser would need
+/// more memory than this server gives one job (`--max-job-memory`).
+fn within_job_memory(scene: &crate::scene::Scene, budget: u64) -> Result<(), ApiError> {
+    use crate::progressive::memory::{human_bytes, MemoryEstimate};
+    let need = MemoryEstimate::of(scene, &Default::default()).least_bytes();
+    if need <= budget {
+        return Ok(());
+    }
+    let mode = scene.render.mode.as_str();
+    let with = if crate::progressive::wants_denoise(scene, &Default::default()) {
+        " with the denoiser"
+    } else {
+        ""
+    };
+    Err(ApiError::new(
+        ErrorCode::OverLimit,
+        format!(
+            "a {}×{} render in {mode} mode{with} needs about {} of memory, more than this server's limit of {} per job; render a smaller image, or the server's operator can raise it with `glimpse serve --max-job-memory`",
+            scene.width,
+            scene.height,
+            human_bytes(need),
+            human_bytes(budget)
+        ),
+    )
+    .at("image"))
 }
 
 /// A refused scene as an answer: every problem listed, the first as the headline.

@@ -25,7 +25,8 @@ use super::store::{
 };
 use crate::cancel::CancelToken;
 use crate::progressive::eta::{Eta, EtaTracker};
-use crate::progressive::{self, Frame, RenderOptions};
+use crate::progressive::memory::MemoryEstimate;
+use crate::progressive::{self, Frame, RenderError, RenderOptions};
 use crate::scene::{parse_scene, Limits, SceneOrigin};
 use crate::tracer::PathTracer;
 use bytes::Bytes;
@@ -208,16 +209,18 @@ pub enum DeleteOutcome {
 /// unit tests substitute renderers that panic or block, to test the job boundary.
 pub type RenderFn = fn(
     crate::scene::Scene,
+    &RenderOptions,
     &mut dyn FnMut(&Frame),
     &CancelToken,
-) -> Result<Frame, crate::cancel::Cancelled>;
+) -> Result<Frame, RenderError>;
 
 /// The production renderer: the path tracer under the progressive loop.
 pub fn render_scene(
     mut scene: crate::scene::Scene,
+    opts: &RenderOptions,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
-) -> Result<Frame, crate::cancel::Cancelled> {
+) -> Result<Frame, RenderError> {
     // Preparing the scene (seconds for the largest mesh a request may hold, a million
     // near-duplicate triangles) stops within a fraction of a second of a cancel.
     let tracer = PathTracer::prepare(&scene, cancel)?;
@@ -225,7 +228,7 @@ pub fn render_scene(
     // many bytes again) go back before the render starts.
     scene.release_geometry();
     crate::service::trim::release_free_memory();
-    progressive::render(&scene, &tracer, &RenderOptions::default(), on_frame, cancel)
+    progressive::render(&scene, &tracer, opts, on_frame, cancel)
 }
 
 /// How this node takes part in rendering (cluster.md).
@@ -239,7 +242,16 @@ pub struct Node {
     /// A claimed job's lease: a worker silent for this long is presumed dead and its job
     /// is queued again by any node's reaper.
     pub lease: std::time::Duration,
+    /// The memory one job may use, in bytes: a submission that would need more is
+    /// refused, and the denoiser's scratch is what a job's own memory leaves of it
+    /// ([`crate::progressive::memory`]).
+    pub job_memory: u64,
 }
+
+/// 8 GB a job: two workers' jobs fit a 24 GiB machine with room for the server, the
+/// page cache and the database (the largest job the default limits accept, 4096² in
+/// any mode with the denoiser, fits: docs/measurements.md "Memory of one job").
+pub const DEFAULT_JOB_MEMORY: u64 = 8_000_000_000;
 
 /// 20 s: a worker killed mid-render loses its job to another worker within 20 s (plus
 /// one reaper pass); ten heartbeats fit in it, so a database restart of a few seconds
@@ -254,6 +266,7 @@ impl Node {
             name: None,
             workers,
             lease: DEFAULT_LEASE,
+            job_memory: DEFAULT_JOB_MEMORY,
         }
     }
 
@@ -501,6 +514,12 @@ impl Jobs {
     #[must_use]
     pub fn limits(&self) -> &Limits {
         &self.inner.limits
+    }
+
+    /// The memory one job may use on this node, in bytes (`--max-job-memory`).
+    #[must_use]
+    pub fn job_memory(&self) -> u64 {
+        self.inner.node.job_memory
     }
 
     /// Jobs waiting for a worker, all nodes together.
@@ -1192,9 +1211,13 @@ fn render_job(
         };
         frames.exposure = scene.display.exposure;
         frames.eta = Some(EtaTracker::for_scene(&scene));
-        match (inner.render)(scene, &mut |f| frames.publish(f), &live.cancel) {
+        let opts = render_options(&scene, inner.node.job_memory);
+        match (inner.render)(scene, &opts, &mut |f| frames.publish(f), &live.cancel) {
             Ok(f) => Outcome::Done(Box::new(f)),
-            Err(_) => Outcome::Cancelled,
+            Err(RenderError::Cancelled) => Outcome::Cancelled,
+            Err(e @ RenderError::Denoise(_)) => {
+                Outcome::Failed(JobError::new(ErrorCode::DenoiseFailed, e.to_string()))
+            }
         }
     }));
     timer.abort();
@@ -1212,6 +1235,16 @@ fn render_job(
         latest: frames.latest.take(),
         exposure: frames.exposure,
         timed_out: timed_out.load(Ordering::SeqCst),
+    }
+}
+
+/// A job's render options: the scene's own settings, the denoiser's scratch memory
+/// what the job's own memory leaves of the node's budget.
+fn render_options(scene: &crate::scene::Scene, job_memory: u64) -> RenderOptions {
+    let opts = RenderOptions::default();
+    RenderOptions {
+        denoise_memory_mb: MemoryEstimate::of(scene, &opts).denoise_scratch_mb(job_memory),
+        ..opts
     }
 }
 
@@ -1368,6 +1401,8 @@ fn decide_end(
         final_frame,
     };
     Some(match r.outcome {
+        // A cancel that came as the render ended wins: the person asked for it.
+        Outcome::Done(_) if user_cancelled => end(JobState::Cancelled, None, r.latest),
         Outcome::Done(f) => {
             let elapsed = start.elapsed().as_secs_f64() * 1e3;
             let progress = progress_of(&f, elapsed, Eta::Done);
@@ -1592,9 +1627,10 @@ mod tests {
     /// Sends one frame, then panics as a buggy tracer would.
     fn panicking(
         scene: crate::scene::Scene,
+        _opts: &RenderOptions,
         on_frame: &mut dyn FnMut(&Frame),
         _cancel: &CancelToken,
-    ) -> Result<Frame, crate::cancel::Cancelled> {
+    ) -> Result<Frame, RenderError> {
         let mut f = frame(0, 2.0, false);
         f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
         f.samples = Image::filled(scene.width, scene.height, SampleCell::New);
@@ -1606,9 +1642,10 @@ mod tests {
     /// Five frames of a 8×6 image, the last one final, with every layer.
     fn five_frames(
         scene: crate::scene::Scene,
+        _opts: &RenderOptions,
         on_frame: &mut dyn FnMut(&Frame),
         _cancel: &CancelToken,
-    ) -> Result<Frame, crate::cancel::Cancelled> {
+    ) -> Result<Frame, RenderError> {
         let mut f = frame(0, 2.0, false);
         for k in 0..5u32 {
             f = frame(k, 2.0 / f64::from(k + 1), k == 4);
@@ -1630,6 +1667,11 @@ mod tests {
         "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "w"}]}"#;
 
     async fn start_five(dir: &std::path::Path) -> (Jobs, Arc<Metrics>) {
+        start_rendering(dir, five_frames).await
+    }
+
+    /// One worker on an embedded store in `dir`, rendering with `render`.
+    async fn start_rendering(dir: &std::path::Path, render: RenderFn) -> (Jobs, Arc<Metrics>) {
         let metrics = Arc::new(Metrics::default());
         let store = Store::open(dir).await.unwrap();
         let jobs = Jobs::start_with(
@@ -1639,7 +1681,7 @@ mod tests {
             4,
             DEFAULT_JOB_TIMEOUT,
             Arc::clone(&metrics),
-            five_frames,
+            render,
         )
         .await
         .unwrap();
@@ -1798,30 +1840,11 @@ mod tests {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_panicking_render_fails_the_job_keeps_its_frame_and_the_worker_lives_on() {
         let dir = tempfile::tempdir().unwrap();
-        let store = Store::open(dir.path()).await.unwrap();
-        let jobs = Jobs::start_with(
-            store,
-            Node::single(1),
-            crate::service::server_limits(),
-            4,
-            DEFAULT_JOB_TIMEOUT,
-            Arc::new(Metrics::default()),
-            panicking,
-        )
-        .await
-        .unwrap();
+        let (jobs, _) = start_rendering(dir.path(), panicking).await;
         let a = jobs.submit("a", TINY).await.unwrap().id;
         let b = jobs.submit("b", TINY).await.unwrap().id;
         for id in [a, b] {
-            let deadline = Instant::now() + std::time::Duration::from_secs(10);
-            let j = loop {
-                let j = jobs.get(id).await.unwrap().unwrap();
-                if j.state.is_finished() {
-                    break j;
-                }
-                assert!(Instant::now() < deadline, "job never finished");
-                tokio::time::sleep(std::time::Duration::from_millis(5)).await;
-            };
+            let j = settled(&jobs, id).await;
             // The second job also ran: the worker survived the first panic.
             assert_eq!(j.state, JobState::Failed);
             let err = j.error.unwrap();
@@ -1837,6 +1860,79 @@ mod tests {
             .unwrap();
             assert_eq!(crate::raster::decode_image(&png).unwrap().width(), 4);
         }
+        jobs.shutdown().await;
+    }
+
+    /// Sends a frame, waits for a cancel (at most 10 s) and then ends as if it had not
+    /// seen it: a render whose last step (a denoise) does not look at the token.
+    fn finishing_despite_a_cancel(
+        scene: crate::scene::Scene,
+        _opts: &RenderOptions,
+        on_frame: &mut dyn FnMut(&Frame),
+        cancel: &CancelToken,
+    ) -> Result<Frame, RenderError> {
+        let mut f = frame(0, 2.0, false);
+        f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
+        on_frame(&f);
+        let deadline = Instant::now() + std::time::Duration::from_secs(10);
+        while !cancel.is_cancelled() && Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        f.last = true;
+        f.iteration = 1;
+        on_frame(&f);
+        Ok(f)
+    }
+
+    /// Sends a frame, then the denoiser fails.
+    fn failing_denoise(
+        scene: crate::scene::Scene,
+        _opts: &RenderOptions,
+        on_frame: &mut dyn FnMut(&Frame),
+        _cancel: &CancelToken,
+    ) -> Result<Frame, RenderError> {
+        let mut f = frame(0, 2.0, false);
+        f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
+        on_frame(&f);
+        Err(RenderError::Denoise(crate::denoise::DenoiseError::Library(
+            "denoising a 100000x1 image: out of memory".into(),
+        )))
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_cancel_wins_over_a_render_that_ends_after_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let (jobs, _) = start_rendering(dir.path(), finishing_despite_a_cancel).await;
+        let id = jobs.submit("a", TINY).await.unwrap().id;
+        let deadline = Instant::now() + std::time::Duration::from_secs(10);
+        while jobs.get(id).await.unwrap().unwrap().state != JobState::Running {
+            assert!(Instant::now() < deadline, "job never ran");
+            tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+        }
+        assert!(matches!(
+            jobs.cancel(id).await.unwrap(),
+            CancelOutcome::Accepted(_)
+        ));
+        let j = settled(&jobs, id).await;
+        assert_eq!(j.state, JobState::Cancelled, "{j:?}");
+        assert!(j.error.is_none() && j.has_frame);
+        jobs.shutdown().await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_failed_denoise_fails_the_job_with_its_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let (jobs, _) = start_rendering(dir.path(), failing_denoise).await;
+        let id = jobs.submit("a", TINY).await.unwrap().id;
+        let j = settled(&jobs, id).await;
+        assert_eq!(j.state, JobState::Failed);
+        let err = j.error.unwrap();
+        assert_eq!(err.code, ErrorCode::DenoiseFailed);
+        assert!(
+            err.message.contains("could not be denoised") && err.message.contains("100000x1"),
+            "{err:?}"
+        );
+        assert!(j.has_frame, "the frames before the failure are kept");
         jobs.shutdown().await;
     }
 }

@@ -78,6 +78,9 @@ pub struct Config {
     pub client_stall: Duration,
     /// A render running longer is stopped and its job failed (`timeout`); `--job-timeout`.
     pub job_timeout: Duration,
+    /// The memory one job may use, in bytes ([`jobs::DEFAULT_JOB_MEMORY`];
+    /// `--max-job-memory`).
+    pub job_memory: u64,
     /// Without a token, requests must name this server in `Host`: its listen address, a
     /// loopback name, or one of these (`--allowed-host`); see `http::check_origin`.
     pub allowed_hosts: Vec<String>,
@@ -106,6 +109,7 @@ impl Config {
             request_deadline: http::REQUEST_DEADLINE,
             client_stall: CLIENT_STALL,
             job_timeout: jobs::DEFAULT_JOB_TIMEOUT,
+            job_memory: jobs::DEFAULT_JOB_MEMORY,
             allowed_hosts: Vec::new(),
             validation_budget: VALIDATION_BUDGET,
             retention: retention::Retention::default(),
@@ -306,6 +310,7 @@ fn node(config: &Config, workers: usize) -> jobs::Node {
         name: shared.then(|| config.node_name.clone().unwrap_or_else(default_node_name)),
         workers,
         lease: config.lease,
+        job_memory: config.job_memory,
     }
 }
 

@@ -561,18 +561,25 @@ mod tests {
 
     #[test]
     fn pbrts_samplers_map_to_the_nearest_of_ours() {
-        let sampler_of = |directive: &str| {
+        let imported = |directive: &str| {
             let text = format!("{directive}{}", mesh("0 1 2", "0 0 0 1 0 0 0 1 0"));
-            run(&text, &[], &limits()).unwrap().doc.render
+            run(&text, &[], &limits()).unwrap()
         };
+        let sampler_of = |directive: &str| imported(directive).doc.render;
         let r = sampler_of("Sampler \"independent\" \"integer pixelsamples\" [8]\n");
         assert_eq!(
             (r.sampler, r.samples_per_pixel),
             (SamplerKind::Independent, 8)
         );
         for other in ["halton", "stratified", "sobol", "paddedsobol", "pmj02bn"] {
-            let r = sampler_of(&format!("Sampler \"{other}\"\n"));
-            assert_eq!(r.sampler, SamplerKind::Sobol, "{other}");
+            let im = imported(&format!("Sampler \"{other}\"\n"));
+            assert_eq!(im.doc.render.sampler, SamplerKind::Sobol, "{other}");
+            // A sampler Glimpse does not have is replaced, and says so.
+            let said = im
+                .warnings
+                .iter()
+                .any(|w| w.contains(other) && w.contains("Sobol"));
+            assert_eq!(said, !other.contains("sobol"), "{other}: {:?}", im.warnings);
         }
         // pbrt-v4's default sampler, named or not.
         assert_eq!(

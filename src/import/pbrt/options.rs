@@ -88,7 +88,15 @@ impl Importer<'_> {
         self.sampler = match ty {
             "independent" => SamplerKind::Independent,
             "zsobol" => SamplerKind::ZSobol,
-            _ => SamplerKind::Sobol,
+            "sobol" | "paddedsobol" => SamplerKind::Sobol,
+            // Low-discrepancy samplers Glimpse does not have: the closest it has, said.
+            other => {
+                self.warn(
+                    pos,
+                    format!("Sampler \"{other}\": rendered with Glimpse's Sobol sampler (same image, other noise)"),
+                );
+                SamplerKind::Sobol
+            }
         };
         Ok(())
     }

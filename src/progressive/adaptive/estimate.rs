@@ -8,7 +8,7 @@
 //! I and I + e at the scene's display and viewing distance (masking, adaptation, ppd):
 //! the error a person would see, in JND, per pixel.
 
-use crate::denoise::{Aux, DenoiseError, Denoiser, Quality};
+use crate::denoise::{Aux, DenoiseError, Denoiser, Quality, Run};
 use crate::metric::{block_map, MetricParams};
 use crate::raster::{Image, LinearImage, Rgb};
 use crate::tracer::aux::AuxMaps;
@@ -20,8 +20,8 @@ pub enum Filter<'a> {
     Denoised {
         denoiser: &'a Denoiser,
         aux: AuxMaps,
-        /// OIDN's `inputScale` (1.0 = 100 cd/m²).
-        input_scale: Option<f32>,
+        /// How each denoise runs (its quality is [`Filter::apply`]'s).
+        run: Run,
     },
 }
 
@@ -30,17 +30,17 @@ impl Filter<'_> {
     pub fn apply(&self, img: &LinearImage, quality: Quality) -> Result<LinearImage, DenoiseError> {
         match self {
             Filter::Raw => Ok(img.clone()),
-            Filter::Denoised {
-                denoiser,
-                aux,
-                input_scale,
-            } => {
+            Filter::Denoised { denoiser, aux, run } => {
                 let aux = Aux {
                     albedo: &aux.albedo,
                     normal: &aux.normal,
                     clean: true,
                 };
-                denoiser.denoise(img, Some(&aux), quality, *input_scale)
+                let run = Run {
+                    quality,
+                    ..run.clone()
+                };
+                denoiser.denoise(img, Some(&aux), &run)
             }
         }
     }

@@ -17,9 +17,9 @@ pub mod allocate;
 pub mod estimate;
 pub mod pixels;
 
-use super::{ClassCell, Frame, IterationStats, RenderStats, SampleCell};
+use super::{ClassCell, Frame, IterationStats, RenderError, RenderStats, SampleCell};
 use crate::cancel::{CancelToken, Cancelled};
-use crate::denoise::{Denoiser, Quality};
+use crate::denoise::{Denoiser, Quality, Run};
 use crate::metric::MetricParams;
 use crate::raster::{Image, LinearImage};
 use crate::scene::ObjectId;
@@ -122,26 +122,31 @@ struct Loop<'a> {
     calm: u32,
     /// What the last pass's reconstruction took: the final one is reserved from the time.
     last_filter: Duration,
+    /// The current pass's tracing and judging times, for its [`IterationStats`].
+    pass_trace_ms: f64,
+    pass_metric_ms: f64,
 }
 
 /// Renders in passes, calling `on_frame` for each; returns the last frame. `denoise`:
-/// the denoiser and its input scale (OIDN's `inputScale`), `None` to keep passes raw.
+/// the denoiser and how it runs (its quality is chosen per pass), `None` to keep passes
+/// raw. A denoiser that fails ends the render with its error: a render asked to denoise
+/// never comes back noisy.
 pub fn render(
     oracle: &impl PixelOracle,
     settings: &Settings,
     model: VisionModel,
-    denoise: Option<(&Denoiser, Option<f32>)>,
+    denoise: Option<(&Denoiser, Run)>,
     on_frame: &mut dyn FnMut(&Frame),
     cancel: &CancelToken,
-) -> Result<Frame, Cancelled> {
+) -> Result<Frame, RenderError> {
     let start = Instant::now();
     let (w, h) = oracle.size();
     let objects = Arc::new(tracer::object_id_map(oracle));
     let filter = match denoise {
-        Some((denoiser, input_scale)) => Filter::Denoised {
+        Some((denoiser, run)) => Filter::Denoised {
             denoiser,
             aux: tracer::aux::aux_maps(oracle, cancel)?,
-            input_scale,
+            run,
         },
         None => Filter::Raw,
     };
@@ -161,6 +166,8 @@ pub fn render(
         start,
         calm: 0,
         last_filter: Duration::ZERO,
+        pass_trace_ms: 0.0,
+        pass_metric_ms: 0.0,
     };
     lp.stats.analysis_ms = ms(start.elapsed());
     let mut extra = vec![settings.first_spp.min(settings.max_spp); (w * h) as usize];
@@ -170,17 +177,17 @@ pub fn render(
             pic,
             visible,
             reference,
-        } = lp.judge(pass);
+        } = lp.judge(pass)?;
         let tiles = lp.tiles(visible.as_ref(), reference.as_ref());
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
-            return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
+            return lp.last_frame(pass, visible, &extra, stop, on_frame);
         }
         let (next, finishing) = lp.plan(&tiles);
         if finishing {
             // The rest costs less than another pass: trace it and end (`traced_rest`).
             on_frame(&lp.frame(pass, pic.image, visible.clone(), &extra, false));
             lp.trace(oracle, &next, cancel)?;
-            return Ok(lp.last_frame(pass + 1, visible, &next, Stop::TracedRest, on_frame));
+            return lp.last_frame(pass + 1, visible, &next, Stop::TracedRest, on_frame);
         }
         if next.iter().all(|&n| n == 0) {
             // Nothing above t0 that is not at max_spp already: nothing left to spend on.
@@ -189,7 +196,7 @@ pub fn render(
             } else {
                 Stop::AllAtMax
             };
-            return Ok(lp.last_frame(pass, visible, &extra, stop, on_frame));
+            return lp.last_frame(pass, visible, &extra, stop, on_frame);
         }
         // A streamed pass shows the mean of its two reconstructed halves (already made
         // for the error estimate); only the last frame reconstructs all the samples at once.
@@ -216,23 +223,24 @@ impl Loop<'_> {
         let traced = self
             .pixels
             .trace(oracle, extra, self.settings.seed, deadline, cancel)?;
-        self.stats.trace_ms += ms(t.elapsed());
+        let took = ms(t.elapsed());
+        self.pass_trace_ms += took;
+        self.stats.trace_ms += took;
         Ok(traced)
     }
 
     /// The pass's picture (the mean of its halves reconstructed at the streamed quality),
     /// the visible error left in it and, when it is denoised, the visible error the
     /// reference would leave ([`estimate::reference_visible`]).
-    fn judge(&mut self, pass: u32) -> Judged {
+    fn judge(&mut self, pass: u32) -> Result<Judged, RenderError> {
         let t = Instant::now();
         let (a, b) = self.pixels.halves();
-        let pic = match estimate::picture((&a, &b), &self.filter, Quality::Fast) {
-            Ok(p) => p,
-            Err(e) => self.raw_after(&e, (&a, &b)),
-        };
+        let pic = estimate::picture((&a, &b), &self.filter, Quality::Fast)?;
         // Two reconstructions: about what the last frame's one at the best quality costs.
         self.last_filter = t.elapsed();
-        self.stats.denoise_ms += ms(self.last_filter);
+        if self.filter.denoises() {
+            self.stats.denoise_ms += ms(self.last_filter);
+        }
         let t = Instant::now();
         let params = MetricParams {
             seed: self.settings.metric.seed
@@ -249,41 +257,23 @@ impl Loop<'_> {
         } else {
             None
         };
-        self.stats.metric_ms += ms(t.elapsed());
-        Judged {
+        self.pass_metric_ms = ms(t.elapsed());
+        self.stats.metric_ms += self.pass_metric_ms;
+        Ok(Judged {
             pic,
             visible,
             reference,
-        }
+        })
     }
 
-    /// The picture of all the samples so far, reconstructed at `quality`; the raw mean if
-    /// the denoiser fails (the frame then says it was not denoised).
-    fn reconstruct(&mut self, quality: Quality) -> LinearImage {
+    /// The picture of all the samples so far, reconstructed at `quality`.
+    fn reconstruct(&mut self, quality: Quality) -> Result<LinearImage, RenderError> {
         let t = Instant::now();
-        let full = self.pixels.mean();
-        let image = match self.filter.apply(&full, quality) {
-            Ok(img) => img,
-            Err(e) => {
-                self.raw_after(&e, (&full, &full));
-                full
-            }
-        };
-        self.stats.denoise_ms += ms(t.elapsed());
-        image
-    }
-
-    /// The raw picture, when the denoiser failed while running: the frames say they were
-    /// not denoised and the failure is logged (the library was found at the start).
-    fn raw_after(
-        &mut self,
-        e: &crate::denoise::DenoiseError,
-        halves: (&LinearImage, &LinearImage),
-    ) -> Picture {
-        tracing::warn!("adaptive: the denoiser failed, this render continues raw: {e}");
-        self.filter = Filter::Raw;
-        self.stats.denoised = false;
-        estimate::picture(halves, &Filter::Raw, Quality::Fast).expect("raw cannot fail")
+        let image = self.filter.apply(&self.pixels.mean(), quality)?;
+        if self.filter.denoises() {
+            self.stats.denoise_ms += ms(t.elapsed());
+        }
+        Ok(image)
     }
 
     /// Each tile's samples, visible error and cost. The error is counted in what the tile
@@ -434,6 +424,8 @@ impl Loop<'_> {
         s.per_iteration.push(IterationStats {
             iteration: pass,
             pixels_traced: extra.iter().filter(|&&n| n > 0).count() as u64,
+            trace_ms: std::mem::take(&mut self.pass_trace_ms),
+            metric_ms: std::mem::take(&mut self.pass_metric_ms),
             mean_distance,
             ..IterationStats::default()
         });
@@ -458,12 +450,12 @@ impl Loop<'_> {
         extra: &[u32],
         stop: Stop,
         on_frame: &mut dyn FnMut(&Frame),
-    ) -> Frame {
-        let image = self.reconstruct(Quality::High);
+    ) -> Result<Frame, RenderError> {
+        let image = self.reconstruct(Quality::High)?;
         self.stats.stop_reason = Some(stop.as_str().into());
         let frame = self.frame(pass, image, visible, extra, true);
         on_frame(&frame);
-        frame
+        Ok(frame)
     }
 }
 
