@@ -138,11 +138,22 @@ fn gltf_and_glb_mutants_are_imported_or_refused() {
     glb.extend((j.len() as u32).to_le_bytes());
     glb.extend(0x4E4F_534Au32.to_le_bytes());
     glb.extend(&j);
-    assert!(
-        import::import_upload(Upload::Glb, &glb, &UploadSettings::default(), &limits()).is_ok()
-    );
+    assert!(import::import_upload(
+        Upload::Glb,
+        &glb,
+        &UploadSettings::default(),
+        &limits(),
+        1 << 23
+    )
+    .is_ok());
     fuzz("glb", &glb, |b| {
-        let _ = import::import_upload(Upload::Glb, b, &UploadSettings::default(), &limits());
+        let _ = import::import_upload(
+            Upload::Glb,
+            b,
+            &UploadSettings::default(),
+            &limits(),
+            1 << 23,
+        );
     });
 }
 
@@ -187,9 +198,9 @@ fn zip_mutants_are_unpacked_or_refused() {
     z.extend(dir_at.to_le_bytes());
     z.extend([0, 0]);
     let s = UploadSettings::default();
-    let ok = import::import_upload(Upload::Zip, &z, &s, &limits());
+    let ok = import::import_upload(Upload::Zip, &z, &s, &limits(), 1 << 23);
     assert!(ok.is_ok(), "{:?}", ok.err());
     fuzz("zip", &z, |b| {
-        let _ = import::import_upload(Upload::Zip, b, &s, &limits());
+        let _ = import::import_upload(Upload::Zip, b, &s, &limits(), 1 << 23);
     });
 }

@@ -2,19 +2,37 @@
 //! Our own reader of the zip central directory (stored and deflated entries), so that
 //! every limit holds before anything is unpacked:
 //! - the entry count and the total *declared* unpacked size are checked first (a zip bomb
-//!   is refused from its directory, not inflated), and each entry inflates with its
-//!   declared size as a hard cap (a directory that lies gets an error, not a big buffer);
+//!   is refused from its directory, not inflated);
+//! - an entry is inflated only when the import reads it, after its declared size has been
+//!   checked against the file limit and the read budget, with that size as a hard cap (a
+//!   directory that lies gets an error, not a big buffer); the import drops it once
+//!   parsed, so an import holds the zip and the files it is reading, not everything the
+//!   bundle unpacks to;
+//! - every read counts against the bundle's read budget, twice what it holds plus
+//!   [`READ_SLACK`]: a file read again (each `Include` of it, each material naming the
+//!   same texture) counts every time;
 //! - names are resolved inside the bundle only: absolute names, `..` that leaves the
 //!   bundle, symbolic links and names not in the bundle are errors naming the entry.
 
+use std::cell::Cell;
 use std::collections::BTreeMap;
 
-use super::FileSource;
+use super::{FileSource, ReadError};
 
 /// The most entries an uploaded bundle may have.
 pub const MAX_ENTRIES: usize = 10_000;
 /// The most bytes an uploaded bundle may unpack to, all entries together (256 MiB).
 pub const MAX_UNPACKED: u64 = 1 << 28;
+/// The largest single file an upload's import reads (64 MiB): a scene, mesh, buffer or
+/// texture is parsed from memory, so this bounds what one file costs to hold and to
+/// parse. It leaves room for a mesh at the default triangle limit (a million triangles are
+/// ~30 MB of binary PLY or glTF buffers).
+pub const MAX_FILE: u64 = 1 << 26;
+/// What an import may read beyond twice what its bundle holds (16 MiB). Public scenes
+/// read some files more than once (veach-ajar names two of its PLY meshes three times
+/// each, 7.3 MB more than its 7.8 MB bundle), while a file included over and over is
+/// refused after a few readings, not parsed 200 times.
+pub const READ_SLACK: u64 = 16 << 20;
 
 /// Bounds on a bundle, checked from its directory.
 #[derive(Clone, Copy, Debug)]
@@ -23,10 +41,15 @@ pub struct BundleLimits {
     pub max_unpacked: u64,
 }
 
-/// The unpacked files of a bundle by normalised name.
+/// The bundle in an upload's bytes: its directory by normalised name, each entry inflated
+/// when it is read.
 #[derive(Debug, Default)]
-pub struct Bundle {
-    files: BTreeMap<String, Vec<u8>>,
+pub struct Bundle<'z> {
+    zip: &'z [u8],
+    files: BTreeMap<String, Entry>,
+    /// Bytes inflated so far and the most that may be.
+    read: Cell<u64>,
+    read_budget: u64,
 }
 
 /// Why a bundle was refused: `too_large` for a limit.
@@ -53,9 +76,9 @@ fn u32_at(b: &[u8], i: usize) -> Option<u64> {
         .map(|s| u64::from(u32::from_le_bytes([s[0], s[1], s[2], s[3]])))
 }
 
-impl Bundle {
-    /// Reads the bundle in `zip`.
-    pub fn parse(zip: &[u8], limits: &BundleLimits) -> Result<Self, BundleError> {
+impl<'z> Bundle<'z> {
+    /// Reads the directory of the bundle in `zip`; nothing is inflated.
+    pub fn parse(zip: &'z [u8], limits: &BundleLimits) -> Result<Self, BundleError> {
         let entries = entries(zip, limits.max_entries)?;
         let total: u64 = entries.iter().map(|e| e.size).sum();
         if total > limits.max_unpacked {
@@ -72,11 +95,15 @@ impl Bundle {
             if e.name.ends_with('/') {
                 continue;
             }
-            let data = unpack(zip, &e).map_err(|m| bad(format!("entry \"{}\": {m}", e.name)))?;
             let key = normalise(&e.name).map_err(|m| bad(format!("entry \"{}\": {m}", e.name)))?;
-            files.insert(key, data);
+            files.insert(key, e);
         }
-        Ok(Self { files })
+        Ok(Self {
+            zip,
+            files,
+            read: Cell::new(0),
+            read_budget: total.saturating_mul(2).saturating_add(READ_SLACK),
+        })
     }
 
     /// The one scene file at the bundle's root (`.json`, `.gltf`, `.glb`, `.pbrt`).
@@ -100,25 +127,49 @@ impl Bundle {
         }
     }
 
+    /// What the entry `name` (normalised) says it unpacks to.
     #[must_use]
-    pub fn get(&self, name: &str) -> Option<&[u8]> {
-        self.files.get(name).map(Vec::as_slice)
+    pub fn size_of(&self, name: &str) -> Option<u64> {
+        self.files.get(name).map(|e| e.size)
+    }
+
+    /// The most bytes the import may inflate, all reads together: twice what the bundle
+    /// holds plus [`READ_SLACK`].
+    #[must_use]
+    pub fn read_budget(&self) -> u64 {
+        self.read_budget
+    }
+
+    /// Charges `e`'s declared size to the read budget, refused past it or past `max`
+    /// (both before anything is inflated).
+    fn charge(&self, name: &str, e: &Entry, max: u64) -> Result<(), ReadError> {
+        if e.size > max {
+            return Err(ReadError::limit(format!(
+                "\"{name}\" unpacks to {} bytes, more than the limit of {max} bytes for one file (refused before unpacking)",
+                e.size
+            )));
+        }
+        let read = self.read.get().saturating_add(e.size);
+        if read > self.read_budget {
+            return Err(ReadError::limit(format!(
+                "reading \"{name}\" ({} bytes) takes what the import reads past the limit of {} bytes, twice what the bundle holds plus {READ_SLACK} (a file read again, as each Include of it, counts every time)",
+                e.size, self.read_budget
+            )));
+        }
+        self.read.set(read);
+        Ok(())
     }
 }
 
-impl FileSource for Bundle {
-    fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, String> {
-        let key = normalise(name).map_err(|m| format!("\"{name}\": {m}"))?;
-        let data = self
+impl FileSource for Bundle<'_> {
+    fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, ReadError> {
+        let key = normalise(name).map_err(|m| ReadError::missing(format!("\"{name}\": {m}")))?;
+        let e = self
             .files
             .get(&key)
-            .ok_or_else(|| format!("\"{name}\" is not in the bundle"))?;
-        if data.len() as u64 > max {
-            return Err(format!(
-                "\"{name}\" is larger than the limit of {max} bytes"
-            ));
-        }
-        Ok(data.clone())
+            .ok_or_else(|| ReadError::missing(format!("\"{name}\" is not in the bundle")))?;
+        self.charge(name, e, max)?;
+        unpack(self.zip, e).map_err(|m| ReadError::missing(format!("entry \"{}\": {m}", e.name)))
     }
 }
 
@@ -183,6 +234,7 @@ fn normalise(name: &str) -> Result<String, String> {
     Ok(parts.join("/"))
 }
 
+#[derive(Debug)]
 struct Entry {
     name: String,
     method: usize,
@@ -328,16 +380,45 @@ mod tests {
         let b = Bundle::parse(&z, &limits()).unwrap();
         assert_eq!(b.scene_file().unwrap(), "scene.pbrt");
         assert_eq!(b.read("./models/../models/a.ply", 10).unwrap(), b"ply");
-        assert!(b
-            .read("../scene.pbrt", 10)
-            .unwrap_err()
+        let err = |name: &str, max: u64| b.read(name, max).unwrap_err();
+        assert!(err("../scene.pbrt", 10)
+            .message
             .contains("leaves the bundle"));
-        assert!(b.read("/etc/passwd", 10).unwrap_err().contains("absolute"));
-        assert!(b
-            .read("models/b.ply", 10)
-            .unwrap_err()
-            .contains("\"models/b.ply\" is not in the bundle"));
-        assert!(b.read("models/a.ply", 2).unwrap_err().contains("limit"));
+        assert!(err("/etc/passwd", 10).message.contains("absolute"));
+        let e = err("models/b.ply", 10);
+        assert!(e.message.contains("\"models/b.ply\" is not in the bundle"));
+        assert!(!e.too_large);
+        let e = err("models/a.ply", 2);
+        assert!(e.too_large && e.message.contains("limit of 2 bytes"), "{e}");
+    }
+
+    #[test]
+    fn entries_inflate_when_read_within_the_read_budget() {
+        let packed = miniz_oxide::deflate::compress_to_vec(&[7u8; 1000], 6);
+        let mut z = stored_zip(&[
+            ("scene.pbrt", b"x", 0o100_644),
+            ("inc.pbrt", &packed, 0o100_644),
+        ]);
+        let dir = z
+            .windows(4)
+            .rposition(|w| w == [0x50, 0x4b, 0x01, 0x02])
+            .unwrap();
+        z[dir + 10] = 8; // deflate
+        z[dir + 24..dir + 28].copy_from_slice(&1000u32.to_le_bytes());
+        let b = Bundle::parse(&z, &limits()).unwrap();
+        assert_eq!(b.size_of("inc.pbrt"), Some(1000));
+        assert_eq!(b.read_budget(), 2 * 1001 + READ_SLACK);
+        assert_eq!(b.read("inc.pbrt", 1000).unwrap(), vec![7u8; 1000]);
+        // Read again and again, as a scene including it over and over: refused once the
+        // reads pass the budget, before inflating.
+        let times = ((2 * 1001 + READ_SLACK) / 1000 - 1) as usize;
+        let refused = (0..times + 2).position(|_| b.read("inc.pbrt", 1000).is_err());
+        assert_eq!(refused, Some(times));
+        let e = b.read("inc.pbrt", 1000).unwrap_err();
+        assert!(
+            e.too_large && e.message.contains("counts every time"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -381,10 +462,11 @@ mod tests {
             "{}",
             e.message
         );
-        // The same entry claiming 10 bytes: inflation stops at the cap.
+        // The same entry claiming 10 bytes: inflation, when it is read, stops at the cap.
         z[dir + 24..dir + 28].copy_from_slice(&10u32.to_le_bytes());
-        let e = Bundle::parse(&z, &limits()).unwrap_err();
-        assert!(e.message.contains("cannot inflate"), "{}", e.message);
+        let b = Bundle::parse(&z, &limits()).unwrap();
+        let e = b.read("zeros.bin", 100).unwrap_err();
+        assert!(e.message.contains("cannot inflate"), "{e}");
         assert!(Bundle::parse(b"PK not a zip", &limits()).is_err());
         assert!(Bundle::parse(&z[..z.len() - 30], &limits()).is_err());
     }

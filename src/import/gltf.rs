@@ -14,6 +14,7 @@ use std::collections::BTreeMap;
 use base64::Engine as _;
 use glam::{Mat3, Mat4, Vec3};
 
+use super::json_count::JsonBudget;
 use super::texture::Encoding;
 use super::{FileSource, ImportError, ImportLimits, Imported};
 use crate::scene::doc::{
@@ -37,6 +38,7 @@ pub fn import(
     } else {
         (bytes, None)
     };
+    check_size(name, json, limits)?;
     check_attribute_indices(name, json)?;
     // The crate's validation indexes some arrays before checking the index (a POSITION
     // accessor index out of range panicked in gltf-json 1.4.1's validation hook, found by
@@ -57,6 +59,7 @@ pub fn import(
         lights: Vec::new(),
         camera: None,
         triangles: 0,
+        vertices: 0,
         warnings: Vec::new(),
     };
     im.load_buffers(bin)?;
@@ -114,21 +117,73 @@ fn split_glb<'a>(name: &str, b: &'a [u8]) -> Result<(&'a [u8], Option<&'a [u8]>)
     }
 }
 
+/// What a glTF's JSON may hold, from the object limit: 128 values and 32 arrays or
+/// objects per object (a mesh instance's node, mesh, primitive, accessors, buffer views and
+/// material are ~100 values in ~20 containers), and a margin for small scenes. At the
+/// default limits each bound costs the crate's parse ~60 MB at most (measured: 320 000
+/// empty nodes +63 MiB, 1.3 M numbers in an accessor's `min` +43 MiB).
+fn json_budget(limits: &ImportLimits) -> JsonBudget {
+    let objects = limits.max_objects as u64;
+    JsonBudget {
+        max_values: objects.saturating_mul(128).saturating_add(65_536),
+        max_containers: objects.saturating_mul(32).saturating_add(4_096),
+    }
+}
+
+/// The JSON's values counted before it is parsed (see [`super::json_count`]).
+fn check_size(name: &str, json: &[u8], limits: &ImportLimits) -> Result<(), ImportError> {
+    let budget = json_budget(limits);
+    let Err(over) = super::json_count::check(json, &budget) else {
+        return Ok(());
+    };
+    let (max, what, per) = if over.containers {
+        (budget.max_containers, "arrays and objects", 32)
+    } else {
+        (budget.max_values, "JSON values", 128)
+    };
+    Err(ImportError::limit(
+        format!("{name}: byte {}", over.offset),
+        format!(
+            "more than {max} {what} ({per} per object of the limit of {} objects, and a margin): refused at this one, before parsing",
+            limits.max_objects
+        ),
+    ))
+}
+
+/// The part of a glTF that [`check_attribute_indices`] reads; the rest is skipped
+/// without being held.
+#[derive(serde::Deserialize)]
+struct AttributeShape {
+    #[serde(default)]
+    accessors: Vec<serde::de::IgnoredAny>,
+    #[serde(default)]
+    meshes: Vec<MeshShape>,
+}
+
+#[derive(serde::Deserialize)]
+struct MeshShape {
+    #[serde(default)]
+    primitives: Vec<PrimitiveShape>,
+}
+
+#[derive(serde::Deserialize)]
+struct PrimitiveShape {
+    #[serde(default)]
+    attributes: BTreeMap<String, u64>,
+}
+
 /// Every mesh attribute's accessor index is in range (what gltf-json's validation assumes).
 fn check_attribute_indices(name: &str, json: &[u8]) -> Result<(), ImportError> {
-    let Ok(v) = serde_json::from_slice::<serde_json::Value>(json) else {
-        return Ok(()); // the crate reports the syntax error with its position
+    let Ok(shape) = serde_json::from_slice::<AttributeShape>(json) else {
+        // The crate reports the syntax error, or the value that is not an index, with its
+        // position.
+        return Ok(());
     };
-    let accessors = v["accessors"].as_array().map_or(0, Vec::len) as u64;
-    for (m, mesh) in v["meshes"].as_array().into_iter().flatten().enumerate() {
-        for (k, prim) in mesh["primitives"]
-            .as_array()
-            .into_iter()
-            .flatten()
-            .enumerate()
-        {
-            for (attr, idx) in prim["attributes"].as_object().into_iter().flatten() {
-                if idx.as_u64().is_some_and(|i| i >= accessors) {
+    let accessors = shape.accessors.len() as u64;
+    for (m, mesh) in shape.meshes.iter().enumerate() {
+        for (k, prim) in mesh.primitives.iter().enumerate() {
+            for (attr, idx) in &prim.attributes {
+                if *idx >= accessors {
                     return Err(ImportError::invalid(
                         format!("{name}: /meshes/{m}/primitives/{k}/attributes/{attr}"),
                         format!("accessor {idx} does not exist ({accessors} accessors)"),
@@ -180,6 +235,8 @@ struct Gltf<'a> {
     lights: Vec<LightDoc>,
     camera: Option<(CameraDoc, Option<f32>)>,
     triangles: usize,
+    /// Vertices read, every instance of a mesh counted ([`Gltf::count_vertices`]).
+    vertices: usize,
     warnings: Vec<String>,
 }
 
@@ -211,17 +268,18 @@ impl Gltf<'_> {
 
     fn load_buffers(&mut self, bin: Option<&[u8]>) -> Result<(), ImportError> {
         // Every buffer is held at once, and many may name the same file (or the GLB's
-        // binary chunk): their bytes together are bounded as a pbrt scene's includes are.
+        // binary chunk): together they may be as large as one file, what a .glb holding
+        // them could be (else four 64 MiB files of an upload would be held together).
         let mut total = 0u64;
         for b in self.doc.buffers() {
             let p = format!("/buffers/{}", b.index());
             total = total.saturating_add(b.length() as u64);
-            if total > self.limits.max_read_bytes {
+            if total > self.limits.max_file_bytes {
                 return Err(ImportError::limit(
                     format!("{}: {p}/byteLength", self.name),
                     format!(
-                        "the buffers add up to more than the limit of {} bytes",
-                        self.limits.max_read_bytes
+                        "the buffers add up to more than the limit of {} bytes for one file",
+                        self.limits.max_file_bytes
                     ),
                 ));
             }
@@ -267,7 +325,7 @@ impl Gltf<'_> {
         let name = percent_decode(uri);
         self.files
             .read(&name, self.limits.max_file_bytes)
-            .map_err(|e| self.at(&format!("{p}/uri"), e))
+            .map_err(|e| e.at(format!("{}: {p}/uri", self.name)))
     }
 
     fn node(&mut self, node: &gltf::Node, parent: Mat4, depth: usize) -> Result<(), ImportError> {
@@ -398,6 +456,7 @@ impl Gltf<'_> {
             .get(&gltf::Semantic::Positions)
             .ok_or_else(|| self.at(&format!("{p}/attributes"), "has no POSITION"))?;
         let positions = self.vec3s(&pos_acc, &format!("{p}/attributes/POSITION"))?;
+        self.count_vertices(positions.len(), p)?;
         let normals = match prim.get(&gltf::Semantic::Normals) {
             Some(a) => Some(self.vec3s(&a, &format!("{p}/attributes/NORMAL"))?),
             None => None,
@@ -417,6 +476,8 @@ impl Gltf<'_> {
             }
         }
         let uvs = self.primitive_uvs(prim, p, n)?;
+        let (positions, normals, uvs) =
+            super::drop_unused_vertices(positions, normals, uvs, &mut indices);
         let material = self.material(prim.material())?;
         let normals = normals.map(|ns| {
             ns.iter()
@@ -439,6 +500,25 @@ impl Gltf<'_> {
             material,
             transform: None,
         }));
+        Ok(())
+    }
+
+    /// Counts `n` vertices of the primitive at `p` against three per triangle of the
+    /// limit, every instance of a mesh counted: each instance reads its accessors again
+    /// (each read is bounded by [`Gltf::span`]), and its unused vertices are dropped only
+    /// once read.
+    fn count_vertices(&mut self, n: usize, p: &str) -> Result<(), ImportError> {
+        self.vertices = self.vertices.saturating_add(n);
+        let max = self.limits.max_triangles.saturating_mul(3);
+        if self.vertices > max {
+            return Err(ImportError::limit(
+                format!("{}: {p}/attributes/POSITION", self.name),
+                format!(
+                    "the meshes read so far have more than {max} vertices, three per triangle of the limit of {} triangles",
+                    self.limits.max_triangles
+                ),
+            ));
+        }
         Ok(())
     }
 
@@ -547,6 +627,16 @@ impl Gltf<'_> {
                     view.length(),
                     view.offset(),
                     buf.len()
+                ),
+            ));
+        }
+        let most = self.limits.max_triangles.saturating_mul(3) as u64;
+        if count > most {
+            return Err(ImportError::limit(
+                format!("{}: {p}/count", self.name),
+                format!(
+                    "{count} elements, more than three per triangle of the limit of {} triangles",
+                    self.limits.max_triangles
                 ),
             ));
         }
@@ -853,13 +943,118 @@ mod tests {
             dir: dir.path().to_path_buf(),
         };
         let l = ImportLimits {
-            max_read_bytes: 42 * 10,
+            max_file_bytes: 42 * 10,
             ..limits()
         };
         let e = import("t.gltf", j.as_bytes(), &src, &l).unwrap_err();
         assert!(e.too_large, "{e}");
         assert_eq!(e.location, "t.gltf: /buffers/10/byteLength");
         assert!(import("t.gltf", j.as_bytes(), &src, &limits()).is_ok());
+    }
+
+    #[test]
+    fn json_past_its_budget_is_refused_before_parsing() {
+        let l = ImportLimits {
+            max_objects: 1,
+            ..limits()
+        };
+        // One object's budget: 128 + 65 536 values, 32 + 4096 containers.
+        let numbers = |n: usize| format!(r#","extras":{{"a":[{}0]}}"#, "0,".repeat(n - 1));
+        assert!(import(
+            "t.gltf",
+            triangle_json(3, &numbers(60_000)).as_bytes(),
+            &none(),
+            &l
+        )
+        .is_ok());
+        let e = import(
+            "t.gltf",
+            triangle_json(3, &numbers(70_000)).as_bytes(),
+            &none(),
+            &l,
+        )
+        .unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert!(e.location.starts_with("t.gltf: byte "), "{e}");
+        assert!(e.message.contains("more than 65664 JSON values"), "{e}");
+        let empties = format!(r#","extras":{{"a":[{}{{}}]}}"#, "{},".repeat(5_000));
+        let e = import("t.gltf", triangle_json(3, &empties).as_bytes(), &none(), &l).unwrap_err();
+        assert!(
+            e.message.contains("more than 4128 arrays and objects"),
+            "{e}"
+        );
+    }
+
+    /// Four positions, one triangle on the last three: the first is dropped.
+    fn unused_vertex_json() -> String {
+        let mut bytes = Vec::new();
+        for v in [
+            [9f32, 9.0, 9.0],
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ] {
+            for c in v {
+                bytes.extend(c.to_le_bytes());
+            }
+        }
+        for i in [1u16, 2, 3] {
+            bytes.extend(i.to_le_bytes());
+        }
+        let b64 = base64::engine::general_purpose::STANDARD.encode(&bytes);
+        triangle_json(4, "")
+            .replace(r#""byteLength":36}"#, r#""byteLength":48}"#)
+            .replace(r#""byteOffset":36"#, r#""byteOffset":48"#)
+            .replace(r#""byteLength":42"#, r#""byteLength":54"#)
+            .replace(
+                r#""nodes":[{"mesh":0,"translation":[0,0,-3]}]"#,
+                r#""nodes":[{"mesh":0},{"mesh":0}]"#,
+            )
+            .replace(r#""nodes":[0]"#, r#""nodes":[0,1]"#)
+            .replace(
+                &format!("base64,{}", triangle_b64()),
+                &format!("base64,{b64}"),
+            )
+    }
+
+    fn triangle_b64() -> String {
+        let j = triangle_json(3, "");
+        let at = j.find("base64,").unwrap() + 7;
+        j[at..at + j[at..].find('"').unwrap()].to_string()
+    }
+
+    #[test]
+    fn unused_vertices_are_dropped_and_every_instance_counts_its_reads() {
+        let j = unused_vertex_json();
+        let im = import("t.gltf", j.as_bytes(), &none(), &limits()).unwrap();
+        let ObjectDoc::Mesh(m) = &im.doc.objects[1] else {
+            panic!("{:?}", im.doc.objects)
+        };
+        assert_eq!(
+            m.positions,
+            [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+        );
+        assert_eq!(m.indices, [[0, 1, 2]]);
+        // Two instances of four vertices read: past three per triangle of a limit of two.
+        let l = ImportLimits {
+            max_triangles: 2,
+            ..limits()
+        };
+        let e = import("t.gltf", j.as_bytes(), &none(), &l).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(
+            e.location,
+            "t.gltf: /meshes/0/primitives/0/attributes/POSITION"
+        );
+        assert!(e.message.contains("more than 6 vertices"), "{e}");
+        // One accessor past the vertex bound is refused before it is read.
+        let l = ImportLimits {
+            max_triangles: 1,
+            ..limits()
+        };
+        let e = import("t.gltf", j.as_bytes(), &none(), &l).unwrap_err();
+        assert!(e.too_large, "{e}");
+        assert_eq!(e.location, "t.gltf: /accessors/0/count");
     }
 
     #[test]

@@ -221,6 +221,10 @@ pub(super) fn raise_flag(path: &str, message: &str) -> Option<&'static str> {
     if message.contains("limit of") && message.contains(" triangles") {
         return Some("--max-triangles");
     }
+    // A document in a bundle is held to a posted document's limit (`import_upload`).
+    if message.contains("bytes for a scene document") {
+        return Some("--max-body");
+    }
     if !message.contains("this server's limit") && !message.contains("this server's cap") {
         return None;
     }
@@ -263,6 +267,7 @@ mod tests {
             ("objects", "10001 objects exceed this server's limit of 10000", "--max-objects"),
             ("objects", "12 triangles exceed this server's limit of 11", "--max-triangles"),
             ("scene.pbrt:3:1", "the scene has more than the limit of 11 triangles", "--max-triangles"),
+            ("scene.json", "the scene document unpacks to 9 bytes, more than the limit of 8 bytes for a scene document, posted or in a bundle (refused before unpacking)", "--max-body"),
         ] {
             assert_eq!(raise_flag(path, message), Some(flag), "{path}: {message}");
             assert!(with_raise_hint(path, message).ends_with(&format!("`glimpse serve {flag}`")));

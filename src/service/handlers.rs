@@ -108,7 +108,8 @@ pub(super) async fn create_job(
         SceneContent::Upload(..) => Some(upload_settings(&query)?),
         SceneContent::Json(_) => None,
     };
-    let (text, parsed, warnings) = validate(body, settings, limits).await?;
+    let (text, parsed, warnings) =
+        validate(body, settings, limits, st.max_body_bytes as u64).await?;
     drop(permit);
     let scene = parsed.map_err(refused)?;
     // Refused now rather than failed later: a job asked to denoise is never rendered
@@ -165,18 +166,20 @@ pub(super) async fn create_job(
 /// A submission's scene: its document (imported first if it is a file), parsed and
 /// validated, with the import's warnings. Validation can be heavy (8 MiB of mesh): off the
 /// async runtime. A panic inside the parser becomes a 500, never a dead server. The job
-/// stores the document, so a restart parses it again.
+/// stores the document, so a restart parses it again; a document in a bundle is held to
+/// `max_document_bytes` as a posted one is.
 async fn validate(
     body: SceneContent,
     settings: Option<crate::import::UploadSettings>,
     limits: crate::scene::Limits,
+    max_document_bytes: u64,
 ) -> Result<(String, Result<crate::scene::Scene, SceneError>, Vec<String>), ApiError> {
     tokio::task::spawn_blocking(move || {
         let (text, warnings) = match body {
             SceneContent::Json(text) => (text, Vec::new()),
             SceneContent::Upload(kind, bytes) => {
                 let s = settings.unwrap_or_default();
-                match crate::import::import_upload(kind, &bytes, &s, &limits) {
+                match crate::import::import_upload(kind, &bytes, &s, &limits, max_document_bytes) {
                     Ok(r) => r,
                     Err(e) => return (String::new(), Err(e), Vec::new()),
                 }

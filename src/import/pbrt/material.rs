@@ -336,6 +336,7 @@ impl Importer<'_> {
         let scale = p.float("scale", 1.0)?;
         let bytes = match self.open(&file, &fpos) {
             Ok(b) => b,
+            Err(e) if e.too_large => return Err(e),
             Err(e) => {
                 // Public scenes ship without some of their textures (veach-ajar):
                 // the texture is greyed out rather than the scene refused.

@@ -377,40 +377,12 @@ fn mesh_uvs(p: &Params, n: usize) -> Result<Option<Vec<[f32; 2]>>, ImportError> 
     })
 }
 
-/// A mesh without the points no triangle uses (kept in their order, indices renumbered):
-/// the document stores only what renders (measured before: 30 M unused numbers in `P`
-/// became a 150 MB document). A mesh that uses every point is returned as it is.
+/// A mesh without the points no triangle uses
+/// ([`crate::import::drop_unused_vertices`]).
 fn drop_unused_points((positions, normals, uvs, mut indices): Lists) -> Lists {
-    let mut used = vec![false; positions.len()];
-    for &i in indices.iter().flatten() {
-        used[i as usize] = true;
-    }
-    if used.iter().all(|&u| u) {
-        return (positions, normals, uvs, indices);
-    }
-    let mut new_index = vec![u32::MAX; positions.len()];
-    for (next, (k, _)) in used.iter().enumerate().filter(|(_, &u)| u).enumerate() {
-        new_index[k] = next as u32;
-    }
-    let keep = |k: &usize| used[*k];
-    let pick = |v: Vec<DVec3>| -> Vec<DVec3> {
-        v.into_iter()
-            .enumerate()
-            .filter(|(k, _)| keep(k))
-            .map(|(_, p)| p)
-            .collect()
-    };
-    let uvs = uvs.map(|v| {
-        v.into_iter()
-            .enumerate()
-            .filter(|(k, _)| keep(k))
-            .map(|(_, p)| p)
-            .collect()
-    });
-    for i in indices.iter_mut().flatten() {
-        *i = new_index[*i as usize];
-    }
-    (pick(positions), normals.map(pick), uvs, indices)
+    let (positions, normals, uvs) =
+        crate::import::drop_unused_vertices(positions, normals, uvs, indices.as_flattened_mut());
+    (positions, normals, uvs, indices)
 }
 
 fn prim_triangles(p: &Prim) -> usize {
