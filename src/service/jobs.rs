@@ -567,7 +567,7 @@ impl Jobs {
         }
         self.inner.store.check_files(&job).await?;
         let path = self.inner.store.layer_path(&job, layer, exr);
-        Ok(match tokio::fs::try_exists(&path).await {
+        Ok(match store::file_present(&path).await {
             Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
             Ok(false) => FrameLookup::NoLayer,
             Err(e) => return Err(e.into()),
@@ -601,7 +601,7 @@ impl Jobs {
             },
         };
         let path = store::iteration_path(&self.inner.store.files_dir(&job), iteration, layer);
-        if tokio::fs::try_exists(&path).await? {
+        if store::file_present(&path).await? {
             return Ok(FrameLookup::Found(FrameBytes::File(path)));
         }
         if live.is_none()

@@ -28,9 +28,9 @@ mod record;
 mod sqlite;
 
 pub use files::{
-    clear_iterations_blocking, iteration_path, kept_iterations_blocking, prepare_job_dir_blocking,
-    remove_iteration_blocking, write_files_blocking, write_final_image_blocking,
-    write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
+    clear_iterations_blocking, file_present, iteration_path, kept_iterations_blocking,
+    prepare_job_dir_blocking, remove_iteration_blocking, write_files_blocking,
+    write_final_image_blocking, write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
 };
 pub use notify::{Listener, News};
 pub use record::{JobError, JobRecord, JobState, Layer, Progress};
@@ -485,13 +485,8 @@ impl Store {
         if !finished {
             return Ok(false);
         }
-        let dir = self.job_dir(id);
         fault::check(fault::Write::RemoveDir)?;
-        match tokio::fs::remove_dir_all(&dir).await {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(e.into()),
-        }
+        files::remove_job_dir(&self.job_dir(id)).await?;
         fault::check(fault::Write::Delete)?;
         let q = "DELETE FROM jobs WHERE id = $1 AND state IN ('succeeded', 'failed', 'cancelled')";
         let r = on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
@@ -527,15 +522,15 @@ impl Store {
     }
 
     /// `Err(FilesMissing)` if `job` is finished with a frame but its image file is gone
-    /// (removed by hand, a data folder restored without its `jobs/`): said and logged,
-    /// rather than answered as a frame without an image layer. A job that a `DELETE` is
-    /// removing is the caller's to tell apart.
+    /// (removed by hand, a file put where its folder was, a data folder restored without
+    /// its `jobs/`): said and logged, rather than answered as a frame without an image
+    /// layer. A job that a `DELETE` is removing is the caller's to tell apart.
     pub async fn check_files(&self, job: &JobRecord) -> Result<(), StoreError> {
         if !job.state.is_finished() || !job.has_frame {
             return Ok(());
         }
         let image = self.layer_path(job, Layer::Image, false);
-        if tokio::fs::try_exists(&image).await? {
+        if files::file_present(&image).await? {
             return Ok(());
         }
         tracing::warn!(id = %job.id, path = %image.display(), "a finished job's files are missing");
