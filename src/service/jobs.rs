@@ -720,16 +720,18 @@ impl Jobs {
     /// (so the caller's 201 is durable); the job is then in the queue every node's
     /// workers claim from, and this node's idle workers are woken.
     pub async fn submit(&self, name: &str, scene_json: &str) -> Result<JobRecord, SubmitError> {
-        self.submit_parsed(name, scene_json, None).await
+        self.submit_parsed(name, scene_json, None, &[]).await
     }
 
     /// [`Self::submit`] with the scene `scene_json` parses to (under [`Self::limits`]),
-    /// handed to this node's worker if one of them claims the job.
+    /// handed to this node's worker if one of them claims the job, and what the
+    /// submission was warned of, kept with the job.
     pub async fn submit_parsed(
         &self,
         name: &str,
         scene_json: &str,
         parsed: Option<crate::scene::Scene>,
+        warnings: &[String],
     ) -> Result<JobRecord, SubmitError> {
         let inner = &self.inner;
         if inner.shutting_down.load(Ordering::SeqCst) {
@@ -741,7 +743,7 @@ impl Jobs {
             // Before the insert: a worker may claim the job as soon as it is committed.
             *lock(&inner.parsed) = Some((id, scene));
         }
-        let inserted = inner.store.insert(id, name, scene_json).await;
+        let inserted = inner.store.insert(id, name, scene_json, warnings).await;
         inner.reserved.fetch_sub(1, Ordering::SeqCst);
         let rec = match inserted {
             Ok(r) => {

@@ -19,7 +19,8 @@
 //  - an example fills the editor as its file is written, and the draft survives a reload;
 //  - the job header shows size, samples and mode from the start; "Edit and re-render"
 //    brings back the job's scene as it was submitted (GET /v1/jobs/{id}/scene);
-//  - a scene with a lamp facing away from everything shows its warning;
+//  - a scene with a lamp facing away from everything shows its warning, also when the job
+//    is opened again later, and the jobs list marks it;
 //  - a width-only size override keeps the scene's aspect;
 //  - on a narrow screen an open job's picture comes before the editor;
 //  - the time left reads as a range, "finishing" or "estimating", never "0 ms";
@@ -441,6 +442,15 @@ async function main() {
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-narrow-job.png"), fullPage: false });
     await page.setViewportSize({ width: 1280, height: 900 });
 
+    // The job keeps its warnings: opened again from its address (no 201 this time) it still
+    // shows them, and the jobs list marks it.
+    const warnedId = (await page.textContent("#job-id")).trim();
+    await page.goto(base + "/?job=" + encodeURIComponent(warnedId));
+    await page.waitForFunction(() => /faces away/.test(document.querySelector("#job-warnings").textContent),
+      null, { timeout: T(30) });
+    await page.waitForSelector(`#jobs tr[data-job="${warnedId}"] .warned`, { timeout: T(10) });
+    check(true, "opened again, the job still shows its warning, and the jobs list marks it");
+
     // 5b'. a large image's preview -----------------------------------------------------------------
     await page.fill("#scene-text", JSON.stringify(FALLBACK_SCENE, null, 2));
     await page.fill("#width-override", "640");
@@ -486,6 +496,8 @@ async function main() {
     await page.click("#zoom-1");
     const one = await page.$eval("#frame-img", (i) => Math.round(i.getBoundingClientRect().width));
     check(one === 400, "1:1 shows one image pixel per screen pixel (" + one + " px)");
+    // In view first: the mouse only reaches what is on the screen.
+    await page.locator("#stage").scrollIntoViewIfNeeded();
     const box = await page.locator("#stage").boundingBox();
     await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
     await page.mouse.down();

@@ -151,7 +151,13 @@ fn db_failure(e: &sqlx::Error) -> Failure {
 /// client-sent text.
 #[must_use]
 pub fn clip(s: &str) -> String {
-    match s.char_indices().nth(64) {
+    clip_to(s, 64)
+}
+
+/// At most `chars` characters of `s`, with "…" when cut.
+#[must_use]
+pub fn clip_to(s: &str, chars: usize) -> String {
+    match s.char_indices().nth(chars) {
         Some((i, _)) => format!("{}…", &s[..i]),
         None => s.to_owned(),
     }
@@ -314,15 +320,25 @@ impl Store {
         self.jobs_dir.join(id.hyphenated().to_string())
     }
 
-    pub async fn insert(&self, id: Uuid, name: &str, scene: &str) -> Result<JobRecord, StoreError> {
+    /// Stores a new queued job with what its submission was warned of (kept bounded:
+    /// [`record::bounded_warnings`]).
+    pub async fn insert(
+        &self,
+        id: Uuid,
+        name: &str,
+        scene: &str,
+        warnings: &[String],
+    ) -> Result<JobRecord, StoreError> {
         fault::check(fault::Write::Insert)?;
         let created = now_rfc3339();
-        let q = "INSERT INTO jobs (id, name, state, scene, created_at) VALUES ($1, $2, 'queued', $3, $4)";
+        let warnings = record::bounded_warnings(warnings);
+        let q = "INSERT INTO jobs (id, name, state, scene, created_at, warnings) VALUES ($1, $2, 'queued', $3, $4, $5)";
         on_pool!(self, p => sqlx::query(q)
             .bind(id.to_string())
             .bind(name)
             .bind(scene)
             .bind(&created)
+            .bind(column_text(Some(&warnings).filter(|w| !w.is_empty())))
             .execute(p)
             .await
             .map(|r| r.rows_affected()))?;
@@ -338,6 +354,7 @@ impl Store {
             error: None,
             attempt: 0,
             worker: None,
+            warnings,
             has_frame: false,
             attempt_token: None,
         })
