@@ -255,6 +255,20 @@ async fn submit_stream_frames_layers_exr_list_delete() {
             "{p}"
         );
     }
+    for f in &frames {
+        // Each frame says the size of its PNG and of the image (the same below a preview's
+        // size).
+        assert_eq!(
+            (f["width"].as_u64(), f["height"].as_u64()),
+            (Some(48), Some(48)),
+            "{f}"
+        );
+        assert_eq!(
+            (f["image_width"].as_u64(), f["image_height"].as_u64()),
+            (Some(48), Some(48)),
+            "{f}"
+        );
+    }
     for p in &pngs {
         assert!(is_png(p));
         assert_eq!(png_size(p), (48, 48));

@@ -1310,9 +1310,10 @@ impl<'a> FramePublisher<'a> {
         self.count_render_time();
         // The copy (0.1-0.4 ms at 512²) is the only per-frame cost on the render's
         // thread; the PNG is encoded later, only if someone takes this frame. The
-        // preview is there to be seen at once: its PNG is encoded here, on the render's
-        // thread, before watchers are woken (once per job), rather than by a watcher's
-        // task competing with the render for the cores; its copy waits until after.
+        // preview is there to be seen at once: the PNG the stream sends of it (at most
+        // `live::PREVIEW_SIDE` pixels a side) is encoded here, on the render's thread,
+        // before watchers are woken (once per job), rather than by a watcher's task
+        // competing with the render for the cores; its copy waits until after.
         let lf = Arc::new(if f.preview {
             LiveFrame::preview(f, self.exposure, progress.clone(), Arc::clone(metrics))
         } else {
