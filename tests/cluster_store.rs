@@ -28,7 +28,7 @@ async fn stores() -> Vec<(Store, tempfile::TempDir)> {
 
 async fn insert(store: &Store, name: &str) -> Uuid {
     let id = Uuid::now_v7();
-    store.insert(id, name, "{}").await.unwrap();
+    store.insert(id, name, "{}", &[]).await.unwrap();
     id
 }
 
@@ -545,7 +545,7 @@ async fn a_stale_attempt_writing_its_final_image_late_never_replaces_the_owners(
     .await
     .unwrap();
     let id = Uuid::now_v7();
-    store.insert(id, "contested", SPHERE).await.unwrap();
+    store.insert(id, "contested", SPHERE, &[]).await.unwrap();
     // The stale worker: claimed, its folder prepared (as while it renders), then silent
     // past its lease.
     let stale = store

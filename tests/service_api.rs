@@ -255,6 +255,20 @@ async fn submit_stream_frames_layers_exr_list_delete() {
             "{p}"
         );
     }
+    for f in &frames {
+        // Each frame says the size of its PNG and of the image (the same below a preview's
+        // size).
+        assert_eq!(
+            (f["width"].as_u64(), f["height"].as_u64()),
+            (Some(48), Some(48)),
+            "{f}"
+        );
+        assert_eq!(
+            (f["image_width"].as_u64(), f["image_height"].as_u64()),
+            (Some(48), Some(48)),
+            "{f}"
+        );
+    }
     for p in &pngs {
         assert!(is_png(p));
         assert_eq!(png_size(p), (48, 48));
@@ -750,6 +764,52 @@ async fn malformed_http_bodies_get_4xx_json_and_the_server_survives() {
     let id = s.submit(&scene(8, 8, "reference", 1)).await;
     s.wait_state(&id, &["succeeded"], Duration::from_secs(10))
         .await;
+    s.stop().await.unwrap();
+}
+
+/// The warnings of the 201 (here a bounce limit above the server's cap) stay with the job:
+/// its `GET`, the list, the stream's `state` and `done`, and after a restart (on a shared
+/// database, what any node reads).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_jobs_warnings_are_kept_and_shown_wherever_the_job_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let capped = |c: &mut glimpse::service::Config| c.limits.max_bounces = 1;
+    let s = Server::start_in(dir.path(), capped).await;
+    let r = s.post_scene(&scene(16, 16, "reference", 1)).await;
+    assert_eq!(r.status(), 201);
+    let created: Value = r.json().await.unwrap();
+    let warnings = created["warnings"].clone();
+    let listed = warnings.as_array().expect("the 201's warnings");
+    assert_eq!(listed.len(), 1, "{created}");
+    assert!(
+        listed[0]
+            .as_str()
+            .unwrap()
+            .starts_with("render.max_bounces: 2 is above"),
+        "{created}"
+    );
+    let id = created["id"].as_str().unwrap().to_owned();
+    let mut ws = ws_connect(&s, &id, None).await;
+    let (texts, _) = read_stream(&mut ws, Duration::from_secs(30)).await;
+    let state = texts.first().unwrap();
+    assert_eq!(state["type"], "state", "{state}");
+    assert_eq!(state["job"]["warnings"], warnings, "{state}");
+    let done = texts.last().unwrap();
+    assert_eq!(done["type"], "done", "{done}");
+    assert_eq!(done["job"]["warnings"], warnings, "{done}");
+    assert_eq!(s.job(&id).await["warnings"], warnings);
+    let list: Value = s.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(list["jobs"][0]["id"], id.as_str());
+    assert_eq!(list["jobs"][0]["warnings"], warnings);
+    // A job without warnings has none in any of these.
+    let quiet = Server::start(|_| {}).await;
+    let other = quiet.submit(&scene(8, 8, "reference", 1)).await;
+    assert!(quiet.job(&other).await.get("warnings").is_none());
+    quiet.stop().await.unwrap();
+    // Read back from the store after a restart, without the cap.
+    s.stop().await.unwrap();
+    let s = Server::start_in(dir.path(), |_| {}).await;
+    assert_eq!(s.job(&id).await["warnings"], warnings);
     s.stop().await.unwrap();
 }
 

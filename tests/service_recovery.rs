@@ -6,8 +6,10 @@
 //!   real full tmpfs where one can be mounted, and with the injected fault everywhere;
 //! - a PostgreSQL outage (a TCP proxy in front of the test server, shut down mid-run) is
 //!   answered within ~2 s with `503 database_unreachable`, not after 10 s as a full disk;
-//! - a finished job whose files were removed outside the server answers `410
-//!   files_missing` for its frames and iterations, and the server logs it;
+//! - a finished job whose files were removed outside the server, or whose folder became
+//!   a regular file, answers `410 files_missing` for its frames and iterations, and the
+//!   server logs it; `DELETE` forgets it with `204`, and `/healthz` stays `200` (one
+//!   job's odd folder is no store fault);
 //! - a corrupt database stops the start-up before anything says "listening on".
 
 mod common;
@@ -404,8 +406,25 @@ async fn a_database_outage_is_answered_at_once_and_named() {
     wait_state(&c, &base, &after, "succeeded", Duration::from_secs(30)).await;
 }
 
+/// What became of a finished job's folder behind the server's back.
+#[derive(Clone, Copy, PartialEq)]
+enum Gone {
+    Removed,
+    /// A regular file where the folder was.
+    FileInstead,
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_job_whose_files_were_removed_says_so() {
+    files_gone(Gone::Removed).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_file_where_a_jobs_folder_was_is_its_files_gone_not_a_store_fault() {
+    files_gone(Gone::FileInstead).await;
+}
+
+async fn files_gone(how: Gone) {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     std::fs::create_dir_all(&data).unwrap();
@@ -426,6 +445,9 @@ async fn a_job_whose_files_were_removed_says_so() {
     let folder = data.join("jobs").join(&id);
     let image = find(&folder, "image.png").expect("the job's image");
     std::fs::remove_dir_all(&folder).unwrap();
+    if how == Gone::FileInstead {
+        std::fs::write(&folder, b"not a folder").unwrap();
+    }
 
     // The record stays as it is (its statistics are true); its images say they are gone.
     let j = common::job(&c, &base, &id).await;
@@ -481,15 +503,17 @@ async fn a_job_whose_files_were_removed_says_so() {
     assert!(line.contains("WARN"), "{line}");
     assert!(line.contains(&id), "{line}");
     assert!(line.contains(&image.display().to_string()), "{line}");
-    // Reading it never removed its record; DELETE does.
+    // Reading it never removed its record; DELETE does, with what stands in its folder's
+    // place, and none of it is a fault of the store.
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert_eq!(common::job(&c, &base, &id).await["state"], "succeeded");
-    let r = c
-        .delete(format!("{base}/v1/jobs/{id}"))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 204);
+    assert_eq!(healthz(&c, &base).await.0, 200);
+    common::delete(&c, &base, &id).await;
+    assert!(!folder.exists());
+    let r = c.get(format!("{base}/v1/jobs/{id}")).send().await.unwrap();
+    assert_eq!(r.status(), 404);
+    let (status, h) = healthz(&c, &base).await;
+    assert_eq!(status, 200, "{h}");
 }
 
 /// The file `name` in `dir` or below it (on a shared database a job's files are in its

@@ -299,12 +299,7 @@ async fn earlier_iterations_are_kept_with_layers_that_still_show_the_method() {
     // They are the job's files: deleting the job removes them.
     let folder = dir.path().join("jobs").join(&id).join("iterations");
     assert!(folder.is_dir());
-    let r = c
-        .delete(format!("{base}/v1/jobs/{id}"))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), 204);
+    common::delete(&c, &base, &id).await;
     assert!(!folder.exists());
     let r = c
         .get(format!("{base}/v1/jobs/{id}/iterations"))

@@ -20,12 +20,14 @@ const BASE_BYTES: u64 = 64 << 20;
 /// tracer is built).
 const BYTES_PER_TRIANGLE: u64 = 320;
 
-/// The smallest scratch the denoiser is given: below it OIDN's tiles get so small that
-/// their overlap dominates (measured: docs/measurements.md).
-pub const MIN_DENOISE_SCRATCH_MB: u32 = 256;
+/// The smallest scratch the denoiser is given. Measured at 2048² (High, with guides):
+/// 256 MB peaks as high as 512 MB (OIDN's own floor) and takes 1.4× its time; 512 MB
+/// 2.4× the untiled time, 1 GB 1.7×, 2 GB 1.5×.
+pub const MIN_DENOISE_SCRATCH_MB: u32 = 512;
 
-/// The most scratch the denoiser is given: more buys no speed on a CPU (measured).
-pub const MAX_DENOISE_SCRATCH_MB: u32 = 2048;
+/// The most scratch the denoiser is given: what it takes untiled at 2048² (2.7 GB),
+/// the size where tiling would start to cost (see [`MIN_DENOISE_SCRATCH_MB`]).
+pub const MAX_DENOISE_SCRATCH_MB: u32 = 4096;
 
 /// A render's memory, estimated from its scene and options.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -40,19 +42,22 @@ pub struct MemoryEstimate {
 /// Bytes a pixel costs in `mode`, the frames handed to the caller included.
 fn bytes_per_pixel(mode: RenderMode) -> u64 {
     match mode {
-        // The image, its per-pixel sums and the frame.
+        // The image, its per-pixel sums and the frame (measured 18 B at 2048²).
         RenderMode::Reference => 48,
         // Per-pixel loop state (estimates, variances, vertex values), the triangulation,
-        // the vision model's maps, the frame's five layers.
-        RenderMode::Progressive | RenderMode::Guo => 360,
-        // Per-pixel sums of two halves, the passes' pictures and error maps.
-        RenderMode::Adaptive => 300,
+        // the vision model's maps, the frame's five layers (measured 313 B at 1024²,
+        // 345 B at 2048²: the triangulation grows a little faster than the pixels).
+        RenderMode::Progressive | RenderMode::Guo => 400,
+        // Per-pixel sums of two halves, the passes' pictures and error maps (measured
+        // 203 B at 1024², 238 B at 2048²).
+        RenderMode::Adaptive => 280,
     }
 }
 
 /// The denoiser's images per pixel: colour, albedo and normal, their sanitised copies,
-/// the output and the frame it goes into.
-const DENOISE_IMAGE_BYTES_PER_PIXEL: u64 = 12 * 10;
+/// the output and the frame it goes into (measured about 160 B at 1024²: what a
+/// reference render with the denoiser holds beyond its scratch).
+const DENOISE_IMAGE_BYTES_PER_PIXEL: u64 = 160;
 
 impl MemoryEstimate {
     /// The estimate for `scene` rendered with `opts`, at the scene's size.
@@ -152,9 +157,10 @@ mod tests {
             denoises: true,
         };
         assert_eq!(e.denoise_scratch_mb(4 << 30), Some(1024));
+        assert_eq!(e.denoise_scratch_mb((3 << 30) + (600 << 20)), Some(600));
         assert_eq!(e.denoise_scratch_mb(64 << 30), Some(MAX_DENOISE_SCRATCH_MB));
         assert_eq!(e.denoise_scratch_mb(1 << 30), Some(MIN_DENOISE_SCRATCH_MB));
-        assert_eq!(e.least_bytes(), (3 << 30) + (256 << 20));
+        assert_eq!(e.least_bytes(), (3 << 30) + (512 << 20));
         let raw = MemoryEstimate {
             denoises: false,
             ..e

@@ -224,6 +224,21 @@ pub fn encode_exr(img: &LinearImage) -> Result<Vec<u8>, CodecError> {
     Ok(out.into_inner())
 }
 
+/// The width and height a PNG's header declares (`None` if `bytes` does not start as a
+/// PNG does), without decoding it.
+#[must_use]
+pub fn png_size(bytes: &[u8]) -> Option<(u32, u32)> {
+    const SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+    let header = bytes.get(..24)?;
+    if !header.starts_with(SIGNATURE) || &header[12..16] != b"IHDR" {
+        return None;
+    }
+    let be = |at: usize| {
+        u32::from_be_bytes([header[at], header[at + 1], header[at + 2], header[at + 3]])
+    };
+    Some((be(16), be(20)))
+}
+
 /// Decodes PNG (as sRGB, to linear [0, 1]) or EXR (linear values as stored).
 pub fn decode_image(bytes: &[u8]) -> Result<LinearImage, CodecError> {
     let fmt = image::guess_format(bytes).map_err(|e| CodecError::Decode(e.to_string()))?;
@@ -303,6 +318,12 @@ mod tests {
         let png = encode_png_display(&img, 1.7).unwrap();
         let back = image::load_from_memory(&png).unwrap().to_rgb8();
         assert_eq!(back.dimensions(), (7, 5));
+        assert_eq!(super::png_size(&png), Some((7, 5)));
+        assert_eq!(super::png_size(&png[..20]), None);
+        assert_eq!(
+            super::png_size(b"GIF89a and more than twenty-four bytes"),
+            None
+        );
         assert_eq!(back.into_raw(), levels);
     }
 

@@ -8,7 +8,7 @@ pub mod colormap;
 
 pub use codec::{
     decode_image, encode_exr, encode_jpeg_display, encode_png_display, encode_png_display_smooth,
-    encode_png_rgb8, CodecError,
+    encode_png_rgb8, png_size, CodecError,
 };
 
 /// Linear RGB with Rec.709/sRGB primaries (scene-format.md "Units").
@@ -164,6 +164,45 @@ impl LinearImage {
     pub fn has_non_finite(&self) -> bool {
         self.data.iter().any(|p| !p.is_finite())
     }
+
+    /// This image shrunk so that its longer side is `max_side` pixels (the aspect kept,
+    /// the shorter side rounded up), each pixel the mean of the pixels it covers; `None` if it is no larger than that already. Rows in parallel (rayon).
+    #[must_use]
+    pub fn shrunk_to(&self, max_side: u32) -> Option<LinearImage> {
+        use rayon::prelude::*;
+        let long = self.width.max(self.height);
+        if long <= max_side || max_side == 0 {
+            return None;
+        }
+        let side = |len: u32| {
+            let s = u64::from(len) * u64::from(max_side);
+            (s.div_ceil(u64::from(long)) as u32).clamp(1, len)
+        };
+        let (w, h) = (side(self.width), side(self.height));
+        // The source pixels [start, end) that output pixel `k` of `out` covers along an
+        // axis `len` long (neighbours share the pixel their edge cuts).
+        let span = |k: u32, out: u32, len: u32| {
+            let (k, out, len) = (u64::from(k), u64::from(out), u64::from(len));
+            let start = k * len / out;
+            let end = ((k + 1) * len).div_ceil(out).max(start + 1).min(len);
+            (start as usize, end as usize)
+        };
+        let columns: Vec<(usize, usize)> = (0..w).map(|x| span(x, w, self.width)).collect();
+        let stride = self.width as usize;
+        let mut data = vec![Rgb::ZERO; w as usize * h as usize];
+        data.par_chunks_mut(w as usize)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let (y0, y1) = span(y as u32, h, self.height);
+                for (out, &(x0, x1)) in row.iter_mut().zip(&columns) {
+                    let sum: Rgb = (y0..y1)
+                        .flat_map(|sy| &self.data[sy * stride + x0..sy * stride + x1])
+                        .sum();
+                    *out = sum / ((y1 - y0) * (x1 - x0)) as f32;
+                }
+            });
+        Image::from_vec(w, h, data)
+    }
 }
 
 /// The sRGB transfer curve (IEC 61966-2-1) of a linear value in [0, 1].
@@ -214,6 +253,24 @@ mod tests {
         }
         assert_eq!(srgb_encode(f32::NAN), 0.0);
         assert!((srgb_encode(f32::INFINITY) - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_shrunk_image_keeps_its_aspect_and_means() {
+        let img = Image::from_fn(2048, 1536, |x, _| Rgb::splat((x / 4) as f32));
+        let small = img.shrunk_to(512).unwrap();
+        assert_eq!((small.width(), small.height()), (512, 384));
+        // Each output pixel is the mean of a 4 × 4 block, whose columns share a value.
+        assert_eq!(*small.get(3, 7), Rgb::splat(3.0));
+        assert!(img.shrunk_to(2048).is_none());
+        assert!(img.shrunk_to(4096).is_none());
+        // Uneven factors and a thin image: no side below 1 pixel, every pixel covered.
+        let thin = Image::from_fn(1000, 3, |x, y| Rgb::splat((x + y) as f32));
+        let t = thin.shrunk_to(300).unwrap();
+        assert_eq!((t.width(), t.height()), (300, 1));
+        assert!(t.pixels().iter().all(|p| p.is_finite() && p.x >= 0.0));
+        let mean = |i: &LinearImage| i.mean()[0];
+        assert!((mean(&t) - mean(&thin)).abs() < 0.01 * mean(&thin));
     }
 
     #[test]

@@ -87,17 +87,9 @@ pub(super) async fn metrics(State(st): State<AppState>) -> impl IntoResponse {
 /// 210 MB answer to `GET /v1/jobs`.
 pub const MAX_NAME_CHARS: usize = 256;
 
-/// The 201 answer: the job, and what an import had to approximate or supply.
-#[derive(Serialize)]
-pub(super) struct Created {
-    #[serde(flatten)]
-    job: JobRecord,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    warnings: Vec<String>,
-}
-
 /// `POST /v1/jobs`: the submission imported if it is a file, validated, checked, then
-/// queued durably before the `201`.
+/// queued durably before the `201`, whose job carries what an import had to approximate
+/// or supply and what is valid but almost surely wrong (`warnings`).
 pub(super) async fn create_job(
     State(st): State<AppState>,
     Params(query): Params,
@@ -146,21 +138,18 @@ pub(super) async fn create_job(
     } else {
         scene.name.clone()
     };
+    // The job keeps its warnings: the 201 shows them, and so does every later answer
+    // about the job (a viewer or a poller may never see the 201).
     let job = st
         .jobs
-        .submit_parsed(&name, &text, Some(scene))
+        .submit_parsed(&name, &text, Some(scene), &warnings)
         .await
         .map_err(not_queued)?;
     let mut headers = HeaderMap::new();
     if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
         headers.insert(header::LOCATION, v);
     }
-    Ok((
-        StatusCode::CREATED,
-        headers,
-        Json(Created { job, warnings }),
-    )
-        .into_response())
+    Ok((StatusCode::CREATED, headers, Json(job)).into_response())
 }
 
 /// A submission's scene: its document (imported first if it is a file), parsed and

@@ -248,10 +248,11 @@ pub struct Node {
     pub job_memory: u64,
 }
 
-/// 8 GB a job: two workers' jobs fit a 24 GiB machine with room for the server, the
-/// page cache and the database (the largest job the default limits accept, 4096² in
-/// any mode with the denoiser, fits: docs/measurements.md "Memory of one job").
-pub const DEFAULT_JOB_MEMORY: u64 = 8_000_000_000;
+/// 10 GB a job: two workers' jobs fit a 24 GiB (25.8 GB) machine with room for the
+/// server, the page cache and the database, and the largest image the default limits
+/// accept, 4096², fits in every mode with the denoiser (docs/measurements.md "Memory
+/// of one job").
+pub const DEFAULT_JOB_MEMORY: u64 = 10_000_000_000;
 
 /// 20 s: a worker killed mid-render loses its job to another worker within 20 s (plus
 /// one reaper pass); ten heartbeats fit in it, so a database restart of a few seconds
@@ -586,7 +587,7 @@ impl Jobs {
         }
         self.inner.store.check_files(&job).await?;
         let path = self.inner.store.layer_path(&job, layer, exr);
-        Ok(match tokio::fs::try_exists(&path).await {
+        Ok(match store::file_present(&path).await {
             Ok(true) => FrameLookup::Found(FrameBytes::File(path)),
             Ok(false) => FrameLookup::NoLayer,
             Err(e) => return Err(e.into()),
@@ -620,7 +621,7 @@ impl Jobs {
             },
         };
         let path = store::iteration_path(&self.inner.store.files_dir(&job), iteration, layer);
-        if tokio::fs::try_exists(&path).await? {
+        if store::file_present(&path).await? {
             return Ok(FrameLookup::Found(FrameBytes::File(path)));
         }
         if live.is_none()
@@ -739,16 +740,18 @@ impl Jobs {
     /// (so the caller's 201 is durable); the job is then in the queue every node's
     /// workers claim from, and this node's idle workers are woken.
     pub async fn submit(&self, name: &str, scene_json: &str) -> Result<JobRecord, SubmitError> {
-        self.submit_parsed(name, scene_json, None).await
+        self.submit_parsed(name, scene_json, None, &[]).await
     }
 
     /// [`Self::submit`] with the scene `scene_json` parses to (under [`Self::limits`]),
-    /// handed to this node's worker if one of them claims the job.
+    /// handed to this node's worker if one of them claims the job, and what the
+    /// submission was warned of, kept with the job.
     pub async fn submit_parsed(
         &self,
         name: &str,
         scene_json: &str,
         parsed: Option<crate::scene::Scene>,
+        warnings: &[String],
     ) -> Result<JobRecord, SubmitError> {
         let inner = &self.inner;
         if inner.shutting_down.load(Ordering::SeqCst) {
@@ -760,7 +763,7 @@ impl Jobs {
             // Before the insert: a worker may claim the job as soon as it is committed.
             *lock(&inner.parsed) = Some((id, scene));
         }
-        let inserted = inner.store.insert(id, name, scene_json).await;
+        let inserted = inner.store.insert(id, name, scene_json, warnings).await;
         inner.reserved.fetch_sub(1, Ordering::SeqCst);
         let rec = match inserted {
             Ok(r) => {
@@ -1341,9 +1344,10 @@ impl<'a> FramePublisher<'a> {
         self.count_render_time();
         // The copy (0.1-0.4 ms at 512²) is the only per-frame cost on the render's
         // thread; the PNG is encoded later, only if someone takes this frame. The
-        // preview is there to be seen at once: its PNG is encoded here, on the render's
-        // thread, before watchers are woken (once per job), rather than by a watcher's
-        // task competing with the render for the cores; its copy waits until after.
+        // preview is there to be seen at once: the PNG the stream sends of it (at most
+        // `live::PREVIEW_SIDE` pixels a side) is encoded here, on the render's thread,
+        // before watchers are woken (once per job), rather than by a watcher's task
+        // competing with the render for the cores; its copy waits until after.
         let lf = Arc::new(if f.preview {
             LiveFrame::preview(f, self.exposure, progress.clone(), Arc::clone(metrics))
         } else {

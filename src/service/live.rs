@@ -17,6 +17,13 @@ pub struct LiveFrame {
     pub iteration: u32,
     /// A preview before the first iteration (`Frame::preview`): image layer only.
     pub preview: bool,
+    /// The image's size in pixels (a relayed frame's, as its PNG declares it).
+    pub width: u32,
+    pub height: u32,
+    /// What the stream sends of a preview larger than [`PREVIEW_SIDE`]: a smaller PNG,
+    /// encoded at once ([`LiveFrame::preview`]). `None` for every other frame, whose
+    /// stream PNG is the image layer's.
+    shown: Option<StreamPng>,
     /// The frame's pixels and layers; `None` for a frame relayed from a worker on
     /// another node, which carries its image layer's PNG only ([`relay`]). Set at once,
     /// except a preview's, set by the render's thread just after it is published
@@ -35,6 +42,23 @@ pub struct LiveFrame {
     /// frame, not one per request (a 4096² EXR is 201 MB).
     others: [std::sync::OnceLock<Result<Option<Bytes>, String>>; OTHER_ENCODINGS.len()],
     metrics: Arc<Metrics>,
+}
+
+/// Longest side, in pixels, of the PNG the stream sends of a preview: the viewer shows it
+/// scaled up to the image's size. The preview is interpolated from about a thousand
+/// traced points, so a smaller copy loses nothing one can see, and at 2048² its full-size
+/// PNG (2.4 MB for the Cornell box, 40–120 ms to encode on a loaded machine) was most of
+/// the time between the POST and the first picture on the client (docs/measurements.md,
+/// "The first frame at the client"). `GET .../frame` and the job's files still get the
+/// full size.
+pub const PREVIEW_SIDE: u32 = 512;
+
+/// The PNG a stream sends for a frame, with its size and the image's it stands for.
+#[derive(Clone)]
+pub struct StreamPng {
+    pub png: Bytes,
+    pub width: u32,
+    pub height: u32,
 }
 
 /// The encodings [`LiveFrame::encoded`] caches besides the image PNG: (layer, EXR?).
@@ -61,6 +85,9 @@ impl LiveFrame {
         Self {
             iteration: frame.iteration,
             preview: frame.preview,
+            width: frame.image.width(),
+            height: frame.image.height(),
+            shown: None,
             pixels: std::sync::OnceLock::from(Some(frame)),
             exposure,
             progress,
@@ -71,8 +98,9 @@ impl LiveFrame {
         }
     }
 
-    /// A preview frame (`Frame::preview`), its PNG already encoded and its pixels not yet
-    /// copied: the copy (48 MB at 2048², kept for the EXR and for the final files should
+    /// A preview frame (`Frame::preview`), the PNG the stream sends of it already encoded
+    /// (shrunk to [`PREVIEW_SIDE`] if it is larger) and its pixels not yet copied: the copy
+    /// (48 MB at 2048², kept for the full-size PNG, the EXR and the final files should
     /// the job stop at the preview) is made after watchers have the PNG, by
     /// [`LiveFrame::keep_preview_pixels`]. Blocking (the encoding).
     pub(super) fn preview(
@@ -81,18 +109,32 @@ impl LiveFrame {
         progress: Progress,
         metrics: Arc<Metrics>,
     ) -> Self {
-        let png = crate::raster::encode_png_display_smooth(&frame.image, exposure)
+        let shrunk = frame.image.shrunk_to(PREVIEW_SIDE);
+        let sent = shrunk.as_ref().unwrap_or(&frame.image);
+        let (width, height) = (sent.width(), sent.height());
+        let encoded = crate::raster::encode_png_display_smooth(sent, exposure)
             .map(Bytes::from)
             .map_err(|e| e.to_string());
         metrics.frames_encoded.fetch_add(1, Ordering::Relaxed);
+        // Not shrunk (or not encoded), what is sent is the image layer's own PNG.
+        let (png, shown) = match (encoded, shrunk.is_some()) {
+            (Ok(png), true) => (
+                std::sync::OnceLock::new(),
+                Some(StreamPng { png, width, height }),
+            ),
+            (encoded, _) => (std::sync::OnceLock::from(encoded), None),
+        };
         Self {
             iteration: frame.iteration,
             preview: true,
+            width: frame.image.width(),
+            height: frame.image.height(),
+            shown,
             pixels: std::sync::OnceLock::new(),
             exposure,
             progress,
             layers: vec![Layer::Image],
-            png: std::sync::OnceLock::from(png),
+            png,
             others: Default::default(),
             metrics,
         }
@@ -107,6 +149,19 @@ impl LiveFrame {
     /// The frame's pixels (`None` for a relayed frame), waiting for a preview's copy.
     fn pixels(&self) -> Option<&Frame> {
         self.pixels.wait().as_ref()
+    }
+
+    /// The PNG the stream sends of this frame: a large preview's smaller one, else the
+    /// image layer's (encoded once, off the async runtime).
+    pub async fn stream_png(self: &Arc<Self>) -> Result<StreamPng, String> {
+        if let Some(shown) = &self.shown {
+            return Ok(shown.clone());
+        }
+        Ok(StreamPng {
+            png: self.image_png().await?,
+            width: self.width,
+            height: self.height,
+        })
     }
 
     /// The PNG of the image layer, encoded once, off the async runtime.
@@ -141,9 +196,13 @@ impl LiveFrame {
         layers: Vec<Layer>,
         metrics: Arc<Metrics>,
     ) -> Self {
+        let (width, height) = crate::raster::png_size(&png).unwrap_or_default();
         Self {
             iteration: progress.iteration,
             preview: false,
+            width,
+            height,
+            shown: None,
             pixels: std::sync::OnceLock::from(None),
             exposure: 1.0,
             progress,

@@ -2,8 +2,11 @@
 //!
 //! Protocol, server to client:
 //! 1. `{"type":"state","job":{...}}` with the job as it is now;
-//! 2. per frame, `{"type":"frame","iteration":k,"progress":{...},"layers":[...]}` then one
-//!    binary message: the PNG of that frame's image;
+//! 2. per frame, `{"type":"frame","iteration":k,"progress":{...},"layers":[...],"width":w,
+//!    "height":h,"image_width":W,"image_height":H}` then one binary message: the PNG of
+//!    that frame's image, `w × h` pixels. That is the image's size `W × H` but for a
+//!    large image's preview, sent smaller (`live::PREVIEW_SIDE`) for the client to scale
+//!    up: the first picture is on the client sooner;
 //! 3. `{"type":"done","job":{...}}` (succeeded or cancelled) or
 //!    `{"type":"error","error":{...},"job":{...}}` (failed), then the server closes.
 //!
@@ -198,6 +201,8 @@ enum StreamMessage<'a> {
         preview: Option<bool>,
         progress: Option<&'a Progress>,
         layers: &'a [Layer],
+        #[serde(flatten)]
+        size: FrameSize,
     },
     /// The job succeeded or was cancelled: the last message.
     Done { job: &'a JobRecord },
@@ -207,6 +212,27 @@ enum StreamMessage<'a> {
         #[serde(skip_serializing_if = "Option::is_none")]
         job: Option<&'a JobRecord>,
     },
+}
+
+/// The size of the PNG a frame message announces, and of the image it stands for.
+#[derive(Serialize)]
+struct FrameSize {
+    width: u32,
+    height: u32,
+    image_width: u32,
+    image_height: u32,
+}
+
+impl FrameSize {
+    /// A PNG that is the image at full size.
+    fn full((width, height): (u32, u32)) -> Self {
+        Self {
+            width,
+            height,
+            image_width: width,
+            image_height: height,
+        }
+    }
 }
 
 async fn send_json(tx: &mut Tx, m: &StreamMessage<'_>) -> Result<(), StreamError> {
@@ -242,16 +268,22 @@ async fn send_binary(tx: &mut Tx, data: Bytes) -> Result<(), StreamError> {
 /// A frame's header message and PNG. Only the PNG's bytes are held while the client
 /// takes them, not the frame (whose buffers are ~240 bytes a pixel).
 async fn send_frame(tx: &mut Tx, lf: Arc<LiveFrame>) -> Result<(), StreamError> {
-    let png = lf.image_png().await.map_err(StreamError::Other)?;
+    let shown = lf.stream_png().await.map_err(StreamError::Other)?;
     let header = to_text(&StreamMessage::Frame {
         iteration: lf.iteration,
         preview: Some(lf.preview),
         progress: Some(&lf.progress),
         layers: &lf.layers,
+        size: FrameSize {
+            width: shown.width,
+            height: shown.height,
+            image_width: lf.width,
+            image_height: lf.height,
+        },
     })?;
     drop(lf);
     send_text(tx, header).await?;
-    send_binary(tx, png).await
+    send_binary(tx, shown.png).await
 }
 
 /// The last message for a finished job.
@@ -401,19 +433,9 @@ async fn send_stored_frame(
         return Ok(());
     };
     let len = file.metadata().await.map(|m| m.len()).unwrap_or(0);
-    let iteration = job.progress.as_ref().map_or(0, |p| p.iteration);
-    send_json(
-        tx,
-        &StreamMessage::Frame {
-            iteration,
-            preview: None,
-            progress: job.progress.as_ref(),
-            layers: &frame.layers,
-        },
-    )
-    .await?;
     // Fragments of exactly the length the file had: a message's size is fixed once its
-    // first fragment is out.
+    // first fragment is out. The first is read before the header, which gives the size
+    // its PNG header declares.
     let mut left = len;
     let mut first = true;
     loop {
@@ -424,6 +446,7 @@ async fn send_stored_frame(
             .map_err(|e| StreamError::Other(format!("reading the stored frame: {e}")))?;
         left -= want as u64;
         let opcode = if first {
+            send_stored_header(tx, job, &frame, &buf).await?;
             OpCode::Data(Data::Binary)
         } else {
             OpCode::Data(Data::Continue)
@@ -435,4 +458,22 @@ async fn send_stored_frame(
             return Ok(());
         }
     }
+}
+
+/// The `frame` message of a stored final frame whose PNG starts with `head`.
+async fn send_stored_header(
+    tx: &mut Tx,
+    job: &JobRecord,
+    frame: &StoredFrame,
+    head: &[u8],
+) -> Result<(), StreamError> {
+    let size = crate::raster::png_size(head).unwrap_or_default();
+    let message = StreamMessage::Frame {
+        iteration: job.progress.as_ref().map_or(0, |p| p.iteration),
+        preview: None,
+        progress: job.progress.as_ref(),
+        layers: &frame.layers,
+        size: FrameSize::full(size),
+    };
+    send_json(tx, &message).await
 }

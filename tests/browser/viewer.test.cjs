@@ -19,7 +19,9 @@
 //  - an example fills the editor as its file is written, and the draft survives a reload;
 //  - the job header shows size, samples and mode from the start; "Edit and re-render"
 //    brings back the job's scene as it was submitted (GET /v1/jobs/{id}/scene);
-//  - a scene with a lamp facing away from everything shows its warning;
+//  - a scene with a lamp facing away from everything shows its warning, also when the job
+//    is opened again later, and the jobs list marks it;
+//  - a large image's preview comes as a smaller PNG and is shown at the image's size;
 //  - a width-only size override keeps the scene's aspect;
 //  - on a narrow screen an open job's picture comes before the editor;
 //  - the time left reads as a range, "finishing" or "estimating", never "0 ms";
@@ -441,16 +443,39 @@ async function main() {
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-narrow-job.png"), fullPage: false });
     await page.setViewportSize({ width: 1280, height: 900 });
 
+    // The job keeps its warnings: opened again from its address (no 201 this time) it still
+    // shows them, and the jobs list marks it.
+    const warnedId = (await page.textContent("#job-id")).trim();
+    await page.goto(base + "/?job=" + encodeURIComponent(warnedId));
+    await page.waitForFunction(() => /faces away/.test(document.querySelector("#job-warnings").textContent),
+      null, { timeout: T(30) });
+    await page.waitForSelector(`#jobs tr[data-job="${warnedId}"] .warned`, { timeout: T(10) });
+    check(true, "opened again, the job still shows its warning, and the jobs list marks it");
+
     // 5b'. a large image's preview -----------------------------------------------------------------
     await page.fill("#scene-text", JSON.stringify(FALLBACK_SCENE, null, 2));
     await page.fill("#width-override", "640");
     await page.fill("#height-override", "480");
+    // At 1:1 the picture is laid out at the image's size, whatever the PNG's.
+    await page.click("#zoom-1");
     await page.click("#submit");
-    await page.waitForFunction(() => /preview/.test(document.querySelector("#iteration").textContent),
-      null, { timeout: T(60), polling: 5 });
-    const previewEta = await page.textContent("#eta");
-    check(!/waiting/.test(previewEta), "a large image's first frame is called a preview, with no iteration done, and the job is no longer 'waiting' (" + previewEta + ")");
+    // The preview's PNG is at most 512 px a side; the page shows it at the image's size,
+    // smoothly (its pixels are not the image's). Read in the poll that sees it loaded: the
+    // first iteration replaces it soon.
+    const pv = await (await page.waitForFunction(() => {
+      const i = document.querySelector("#frame-img");
+      const r = i.getBoundingClientRect();
+      return /preview/.test(document.querySelector("#iteration").textContent) && i.complete
+        && i.naturalWidth > 0 && i.naturalWidth <= 512 && i.dataset.reduced === "true"
+        && { natural: [i.naturalWidth, i.naturalHeight], box: [r.width, r.height],
+          rendering: getComputedStyle(i).imageRendering, eta: document.querySelector("#eta").textContent };
+    }, null, { timeout: T(60), polling: 5 })).jsonValue();
+    check(!/waiting/.test(pv.eta), "a large image's first frame is called a preview, with no iteration done, and the job is no longer 'waiting' (" + pv.eta + ")");
+    check(pv.natural[0] === 512 && pv.natural[1] === 384 && Math.round(pv.box[0]) === 640 && Math.round(pv.box[1]) === 480
+      && pv.rendering === "auto",
+      "the preview comes as a " + pv.natural.join("x") + " PNG and is shown at the image's 640x480 (" + pv.box.map(Math.round).join("x") + ", " + pv.rendering + ")");
     await page.screenshot({ path: shotPath.replace(/\.png$/, "-preview.png"), fullPage: false });
+    await page.click("#zoom-fit");
     // The stream skips frames a slow page has not taken yet: the first one after the preview
     // may be a later iteration.
     await page.waitForFunction(() => /^[1-9][0-9]*$/.test(document.querySelector("#iteration").textContent),
@@ -486,6 +511,8 @@ async function main() {
     await page.click("#zoom-1");
     const one = await page.$eval("#frame-img", (i) => Math.round(i.getBoundingClientRect().width));
     check(one === 400, "1:1 shows one image pixel per screen pixel (" + one + " px)");
+    // In view first: the mouse only reaches what is on the screen.
+    await page.locator("#stage").scrollIntoViewIfNeeded();
     const box = await page.locator("#stage").boundingBox();
     await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
     await page.mouse.down();

@@ -140,6 +140,16 @@ pub async fn submit(c: &reqwest::Client, base: &str, scene: &serde_json::Value) 
         .to_owned()
 }
 
+/// `DELETE /v1/jobs/{id}`; asserts `204`.
+pub async fn delete(c: &reqwest::Client, base: &str, id: &str) {
+    let r = c
+        .delete(format!("{base}/v1/jobs/{id}"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 204, "DELETE of job {id}");
+}
+
 /// `GET /v1/jobs/{id}` as JSON.
 pub async fn job(c: &reqwest::Client, base: &str, id: &str) -> serde_json::Value {
     get_json(c, &format!("{base}/v1/jobs/{id}")).await

@@ -61,7 +61,7 @@ pub fn clear_iterations_blocking(job_dir: &Path) -> std::io::Result<()> {
 pub fn kept_iterations_blocking(job_dir: &Path) -> std::io::Result<Vec<(u32, Vec<Layer>)>> {
     let rd = match std::fs::read_dir(job_dir.join(ITERATIONS_DIR)) {
         Ok(rd) => rd,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) if is_gone(&e) => return Ok(Vec::new()),
         Err(e) => return Err(e),
     };
     let mut found = std::collections::BTreeMap::<u32, Vec<Layer>>::new();
@@ -85,6 +85,41 @@ pub fn kept_iterations_blocking(job_dir: &Path) -> std::io::Result<Vec<(u32, Vec
             (n, layers)
         })
         .collect())
+}
+
+/// Whether `e` says a job's file is not there: missing, or a path through something that
+/// is not a folder (a regular file put where the job's folder was). Either way the job's
+/// files are gone; neither is the store failing.
+#[must_use]
+pub fn is_gone(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory
+    )
+}
+
+/// Whether a job's file at `path` is there ([`is_gone`] answers no, not an error).
+pub async fn file_present(path: &Path) -> std::io::Result<bool> {
+    match tokio::fs::try_exists(path).await {
+        Err(e) if is_gone(&e) => Ok(false),
+        r => r,
+    }
+}
+
+/// Removes a job's folder with everything in it, or whatever stands in its place (a
+/// regular file or a link put there by hand): `DELETE` forgets what is there. Nothing
+/// there is no error.
+pub async fn remove_job_dir(dir: &Path) -> std::io::Result<()> {
+    match tokio::fs::remove_dir_all(dir).await {
+        Err(e) if e.kind() == std::io::ErrorKind::NotADirectory => {
+            match tokio::fs::remove_file(dir).await {
+                Err(e) if !is_gone(&e) => Err(e),
+                _ => Ok(()),
+            }
+        }
+        Err(e) if !is_gone(&e) => Err(e),
+        _ => Ok(()),
+    }
 }
 
 /// The file the final image goes to, created empty while the job renders (see
@@ -209,6 +244,24 @@ mod tests {
         super::clear_iterations_blocking(&job).unwrap();
         super::clear_iterations_blocking(&job).unwrap();
         assert!(super::kept_iterations_blocking(&job).unwrap().is_empty());
+    }
+
+    /// A regular file where a job's folder should be: its files are gone, not a fault,
+    /// and removing the job removes the file.
+    #[tokio::test]
+    async fn a_file_in_place_of_a_jobs_folder_is_its_files_gone() {
+        let dir = tempfile::tempdir().unwrap();
+        let job = dir.path().join("job");
+        std::fs::write(&job, b"not a folder").unwrap();
+        assert!(!super::file_present(&job.join("image.png")).await.unwrap());
+        assert!(super::kept_iterations_blocking(&job).unwrap().is_empty());
+        super::remove_job_dir(&job).await.unwrap();
+        assert!(!job.exists());
+        super::remove_job_dir(&job).await.unwrap();
+        // A folder goes with what is in it.
+        super::write_iteration_blocking(&job, 1, &[(Layer::Image, b"i")]).unwrap();
+        super::remove_job_dir(&job).await.unwrap();
+        assert!(!job.exists());
     }
 
     #[test]

@@ -28,9 +28,9 @@ mod record;
 mod sqlite;
 
 pub use files::{
-    clear_iterations_blocking, iteration_path, kept_iterations_blocking, prepare_job_dir_blocking,
-    remove_iteration_blocking, write_files_blocking, write_final_image_blocking,
-    write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
+    clear_iterations_blocking, file_present, iteration_path, kept_iterations_blocking,
+    prepare_job_dir_blocking, remove_iteration_blocking, write_files_blocking,
+    write_final_image_blocking, write_iteration_blocking, FINAL_IMAGE_FILE, ITERATIONS_DIR,
 };
 pub use notify::{Listener, News};
 pub use record::{JobError, JobRecord, JobState, Layer, Progress};
@@ -151,7 +151,13 @@ fn db_failure(e: &sqlx::Error) -> Failure {
 /// client-sent text.
 #[must_use]
 pub fn clip(s: &str) -> String {
-    match s.char_indices().nth(64) {
+    clip_to(s, 64)
+}
+
+/// At most `chars` characters of `s`, with "…" when cut.
+#[must_use]
+pub fn clip_to(s: &str, chars: usize) -> String {
+    match s.char_indices().nth(chars) {
         Some((i, _)) => format!("{}…", &s[..i]),
         None => s.to_owned(),
     }
@@ -314,15 +320,25 @@ impl Store {
         self.jobs_dir.join(id.hyphenated().to_string())
     }
 
-    pub async fn insert(&self, id: Uuid, name: &str, scene: &str) -> Result<JobRecord, StoreError> {
+    /// Stores a new queued job with what its submission was warned of (kept bounded:
+    /// [`record::bounded_warnings`]).
+    pub async fn insert(
+        &self,
+        id: Uuid,
+        name: &str,
+        scene: &str,
+        warnings: &[String],
+    ) -> Result<JobRecord, StoreError> {
         fault::check(fault::Write::Insert)?;
         let created = now_rfc3339();
-        let q = "INSERT INTO jobs (id, name, state, scene, created_at) VALUES ($1, $2, 'queued', $3, $4)";
+        let warnings = record::bounded_warnings(warnings);
+        let q = "INSERT INTO jobs (id, name, state, scene, created_at, warnings) VALUES ($1, $2, 'queued', $3, $4, $5)";
         on_pool!(self, p => sqlx::query(q)
             .bind(id.to_string())
             .bind(name)
             .bind(scene)
             .bind(&created)
+            .bind(column_text(Some(&warnings).filter(|w| !w.is_empty())))
             .execute(p)
             .await
             .map(|r| r.rows_affected()))?;
@@ -338,6 +354,7 @@ impl Store {
             error: None,
             attempt: 0,
             worker: None,
+            warnings,
             has_frame: false,
             attempt_token: None,
         })
@@ -485,13 +502,8 @@ impl Store {
         if !finished {
             return Ok(false);
         }
-        let dir = self.job_dir(id);
         fault::check(fault::Write::RemoveDir)?;
-        match tokio::fs::remove_dir_all(&dir).await {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(e.into()),
-        }
+        files::remove_job_dir(&self.job_dir(id)).await?;
         fault::check(fault::Write::Delete)?;
         let q = "DELETE FROM jobs WHERE id = $1 AND state IN ('succeeded', 'failed', 'cancelled')";
         let r = on_pool!(self, p => sqlx::query(q).bind(id.to_string()).execute(p).await.map(|r| r.rows_affected()))?;
@@ -527,15 +539,15 @@ impl Store {
     }
 
     /// `Err(FilesMissing)` if `job` is finished with a frame but its image file is gone
-    /// (removed by hand, a data folder restored without its `jobs/`): said and logged,
-    /// rather than answered as a frame without an image layer. A job that a `DELETE` is
-    /// removing is the caller's to tell apart.
+    /// (removed by hand, a file put where its folder was, a data folder restored without
+    /// its `jobs/`): said and logged, rather than answered as a frame without an image
+    /// layer. A job that a `DELETE` is removing is the caller's to tell apart.
     pub async fn check_files(&self, job: &JobRecord) -> Result<(), StoreError> {
         if !job.state.is_finished() || !job.has_frame {
             return Ok(());
         }
         let image = self.layer_path(job, Layer::Image, false);
-        if tokio::fs::try_exists(&image).await? {
+        if files::file_present(&image).await? {
             return Ok(());
         }
         tracing::warn!(id = %job.id, path = %image.display(), "a finished job's files are missing");

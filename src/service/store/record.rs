@@ -156,6 +156,11 @@ pub struct JobRecord {
     pub attempt: u32,
     /// The worker node that runs (or last ran) the job, on a shared database.
     pub worker: Option<String>,
+    /// What its submission was warned of (the 201 answer's `warnings`), kept with the job
+    /// so that every later reader sees it; bounded by [`bounded_warnings`]. Absent when
+    /// there is nothing, as in the 201.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// True once a frame was stored (`GET .../frame` can answer after a restart).
     #[serde(skip)]
     pub has_frame: bool,
@@ -182,10 +187,11 @@ pub(super) struct Row {
     worker: Option<String>,
     has_frame: i64,
     lease_token: Option<String>,
+    warnings: Option<String>,
 }
 
 pub(super) const COLUMNS: &str =
-    "id, name, state, created_at, started_at, finished_at, progress, stats, error, attempts, worker, has_frame, lease_token";
+    "id, name, state, created_at, started_at, finished_at, progress, stats, error, attempts, worker, has_frame, lease_token, warnings";
 
 impl Row {
     pub(super) fn into_record(self) -> Result<JobRecord, StoreError> {
@@ -210,6 +216,7 @@ impl Row {
             finished_at: self.finished_at,
             attempt: u32::try_from(self.attempts).unwrap_or(0),
             worker: self.worker,
+            warnings: parse_column(id, "warnings", self.warnings).unwrap_or_default(),
             has_frame: self.has_frame != 0,
             // A damaged token reads as none: the files are then looked for in the job's
             // own folder, and the job's frames answer 404 rather than the list failing.
@@ -219,6 +226,31 @@ impl Row {
                 .map(super::LeaseToken),
         })
     }
+}
+
+/// Warnings a job keeps at most: a scene with thousands of lamps facing away, or an
+/// import of thousands of unsupported materials, warns once per item, and the list is
+/// repeated in every answer and stream message about the job.
+pub const MAX_WARNINGS: usize = 32;
+
+/// Longest warning kept (characters): a warning may quote an imported file's own names.
+pub const MAX_WARNING_CHARS: usize = 1000;
+
+/// `warnings` as a job keeps them: at most [`MAX_WARNINGS`] lines (the last one saying how
+/// many more there were), each cut to [`MAX_WARNING_CHARS`].
+#[must_use]
+pub fn bounded_warnings(warnings: &[String]) -> Vec<String> {
+    let cut = |w: &String| super::clip_to(w, MAX_WARNING_CHARS);
+    if warnings.len() <= MAX_WARNINGS {
+        return warnings.iter().map(cut).collect();
+    }
+    let shown = MAX_WARNINGS - 1;
+    let mut out: Vec<String> = warnings[..shown].iter().map(cut).collect();
+    out.push(format!(
+        "… and {} more warnings like these, not shown",
+        warnings.len() - shown
+    ));
+    out
 }
 
 /// A JSON column read into its type. A damaged one loses that field (logged), not the
@@ -264,6 +296,24 @@ mod tests {
         );
         let back: JobError = serde_json::from_str(r#"{"code":"timeout","message":"m"}"#).unwrap();
         assert_eq!(back.code, ErrorCode::Timeout);
+    }
+
+    #[test]
+    fn warnings_are_bounded_in_count_and_length() {
+        let few = vec!["a: b".to_owned(), "c: d".to_owned()];
+        assert_eq!(bounded_warnings(&few), few);
+        let long = "é".repeat(MAX_WARNING_CHARS + 5);
+        let kept = bounded_warnings(std::slice::from_ref(&long));
+        assert_eq!(kept[0].chars().count(), MAX_WARNING_CHARS + 1);
+        assert!(kept[0].ends_with('…'));
+        let many: Vec<String> = (0..100)
+            .map(|k| format!("objects[{k}]: faces away"))
+            .collect();
+        let kept = bounded_warnings(&many);
+        assert_eq!(kept.len(), MAX_WARNINGS);
+        assert_eq!(kept[MAX_WARNINGS - 2], many[MAX_WARNINGS - 2]);
+        assert!(kept[MAX_WARNINGS - 1].contains("69 more"), "{kept:?}");
+        assert_eq!(bounded_warnings(&many[..MAX_WARNINGS]).len(), MAX_WARNINGS);
     }
 
     #[test]
