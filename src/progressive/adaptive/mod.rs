@@ -177,7 +177,7 @@ pub fn render(
             pic,
             visible,
             reference,
-        } = lp.judge(pass)?;
+        } = lp.judge(pass, cancel)?;
         let tiles = lp.tiles(visible.as_ref(), reference.as_ref());
         if let Some(stop) = lp.stop(pass, traced, &tiles) {
             return lp.last_frame(pass, visible, &extra, stop, on_frame);
@@ -232,7 +232,7 @@ impl Loop<'_> {
     /// The pass's picture (the mean of its halves reconstructed at the streamed quality),
     /// the visible error left in it and, when it is denoised, the visible error the
     /// reference would leave ([`estimate::reference_visible`]).
-    fn judge(&mut self, pass: u32) -> Result<Judged, RenderError> {
+    fn judge(&mut self, pass: u32, cancel: &CancelToken) -> Result<Judged, RenderError> {
         let t = Instant::now();
         let (a, b) = self.pixels.halves();
         let pic = estimate::picture((&a, &b), &self.filter, Quality::Fast)?;
@@ -247,7 +247,11 @@ impl Loop<'_> {
                 ^ u64::from(pass + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15),
             ..self.settings.metric
         };
+        // The vision model's maps take a few hundred ms at 2048² and do not look at the
+        // token: a cancel is seen between them.
+        cancel.check()?;
         let visible = estimate::visible_error(&self.model, &pic, &params);
+        cancel.check()?;
         // Raw, the picture is the reference's estimator: its error can only reach the
         // reference's at max_spp, so there is nothing to compare.
         let reference = if self.filter.denoises() {
