@@ -258,3 +258,36 @@ async fn a_cancel_ends_a_denoising_job_at_any_phase() {
         );
     }
 }
+
+/// A job whose size, mode and denoiser would need more memory than the server gives one
+/// job is refused before it is queued, naming the flag that raises the budget; the same
+/// image without the denoiser, or smaller, fits.
+#[tokio::test]
+async fn a_job_beyond_the_memory_budget_is_refused_naming_the_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = common::free_port();
+    let c = reqwest::Client::new();
+    let _server = common::spawn(dir.path(), port, None, &["--max-job-memory", "1"], &[], &c).await;
+    let base = format!("http://127.0.0.1:{port}");
+    let mut big = common::sphere_scene("big", 2048, 2048, "adaptive", 1, 1);
+    big["render"]["denoise"] = serde_json::json!(true);
+    let r = post(&c, &base, big.to_string()).await;
+    assert_eq!(r.status(), 422);
+    let v: serde_json::Value = r.json().await.unwrap();
+    assert_eq!(v["error"]["code"], "over_limit", "{v}");
+    assert_eq!(v["error"]["path"], "image", "{v}");
+    let msg = v["error"]["message"].as_str().unwrap();
+    assert!(
+        msg.contains("2048×2048") && msg.contains("adaptive") && msg.contains("--max-job-memory"),
+        "{msg}"
+    );
+    // Fits: the same size raw in the reference mode, and a small denoised one.
+    let mut raw = common::sphere_scene("raw", 2048, 2048, "reference", 1, 1);
+    raw["render"]["denoise"] = serde_json::json!(false);
+    let mut small = common::sphere_scene("small", 256, 256, "adaptive", 2, 1);
+    small["render"]["denoise"] = serde_json::json!(true);
+    for scene in [raw, small] {
+        let r = post(&c, &base, scene.to_string()).await;
+        assert_eq!(r.status(), 201, "{}", r.text().await.unwrap());
+    }
+}

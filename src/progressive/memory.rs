@@ -46,18 +46,29 @@ fn bytes_per_pixel(mode: RenderMode) -> u64 {
         RenderMode::Reference => 48,
         // Per-pixel loop state (estimates, variances, vertex values), the triangulation,
         // the vision model's maps, the frame's five layers (measured 313 B at 1024²,
-        // 345 B at 2048²: the triangulation grows a little faster than the pixels).
-        RenderMode::Progressive | RenderMode::Guo => 400,
+        // 345 B at 2048², 376 B at 4096²: the triangulation grows a little faster than
+        // the pixels).
+        RenderMode::Progressive => 400,
+        // The same loop without the vision model, refining further (measured 300 B at
+        // 1024², 328 B at 2048², 480 B at 4096²).
+        RenderMode::Guo => 500,
         // Per-pixel sums of two halves, the passes' pictures and error maps (measured
         // 203 B at 1024², 238 B at 2048²).
         RenderMode::Adaptive => 280,
     }
 }
 
-/// The denoiser's images per pixel: colour, albedo and normal, their sanitised copies,
-/// the output and the frame it goes into (measured about 160 B at 1024²: what a
-/// reference render with the denoiser holds beyond its scratch).
-const DENOISE_IMAGE_BYTES_PER_PIXEL: u64 = 160;
+/// The denoiser's images per pixel beside the mode's own: colour, albedo and normal,
+/// their sanitised copies, the output and the frame it goes into. A reference or adaptive
+/// render holds them beside everything else (measured about 140 B at 1024² beyond the
+/// scratch); the loops denoise their last frame only, when most of their state is gone
+/// (measured 35 B at 4096², the scratch included).
+fn denoise_bytes_per_pixel(mode: RenderMode) -> u64 {
+    match mode {
+        RenderMode::Reference | RenderMode::Adaptive => 160,
+        RenderMode::Progressive | RenderMode::Guo => 48,
+    }
+}
 
 impl MemoryEstimate {
     /// The estimate for `scene` rendered with `opts`, at the scene's size.
@@ -68,7 +79,7 @@ impl MemoryEstimate {
         let pixels = u64::from(scene.width) * u64::from(scene.height);
         let per_pixel = bytes_per_pixel(mode)
             + if denoises {
-                DENOISE_IMAGE_BYTES_PER_PIXEL
+                denoise_bytes_per_pixel(mode)
             } else {
                 0
             };
@@ -143,7 +154,7 @@ mod tests {
         assert!(denoised.denoises && !large.denoises);
         assert_eq!(
             denoised.render_bytes - large.render_bytes,
-            DENOISE_IMAGE_BYTES_PER_PIXEL * 2048 * 2048
+            denoise_bytes_per_pixel(RenderMode::Progressive) * 2048 * 2048
         );
         // Adaptive denoises unless told not to.
         let adaptive = MemoryEstimate::of(&scene(64, 64, RenderMode::Adaptive, None), &opts);
@@ -167,6 +178,28 @@ mod tests {
         };
         assert_eq!(raw.denoise_scratch_mb(4 << 30), None);
         assert_eq!(raw.least_bytes(), 3 << 30);
+    }
+
+    /// The largest image the server's default limits accept fits the default budget in
+    /// every mode, with and without the denoiser (their peaks measured in
+    /// docs/measurements.md "Memory of one job").
+    #[test]
+    fn the_largest_default_image_fits_the_default_budget_in_every_mode() {
+        let budget = crate::service::jobs::DEFAULT_JOB_MEMORY;
+        for mode in [
+            RenderMode::Reference,
+            RenderMode::Progressive,
+            RenderMode::Guo,
+            RenderMode::Adaptive,
+        ] {
+            for denoise in [false, true] {
+                let e = MemoryEstimate::of(
+                    &scene(4096, 4096, mode, Some(denoise)),
+                    &RenderOptions::default(),
+                );
+                assert!(e.least_bytes() <= budget, "{mode:?} {denoise}: {e:?}");
+            }
+        }
     }
 
     #[test]
