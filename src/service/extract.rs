@@ -91,6 +91,12 @@ impl FromRequest<AppState> for SceneBody {
                 ),
             ));
         }
+        if req.headers().get_all(header::CONTENT_TYPE).iter().count() > 1 {
+            return Err(ApiError::new(
+                ErrorCode::InvalidRequest,
+                "Content-Type is given more than once; give it once",
+            ));
+        }
         let upload = match req
             .headers()
             .get(header::CONTENT_TYPE)
@@ -310,15 +316,28 @@ impl<S: Send + Sync> FromRequestParts<S> for Params {
         parts: &mut axum::http::request::Parts,
         state: &S,
     ) -> Result<Self, ApiError> {
-        axum::extract::Query::<HashMap<String, String>>::from_request_parts(parts, state)
+        let pairs = axum::extract::Query::<Vec<(String, String)>>::from_request_parts(parts, state)
             .await
-            .map(|q| Params(q.0))
             .map_err(|e| {
                 ApiError::new(
                     ErrorCode::InvalidParameter,
                     format!("unreadable query string: {e}"),
                 )
-            })
+            })?
+            .0;
+        // `?width=8&width=9` is ambiguous: refused rather than one of them kept silently.
+        let mut map = HashMap::with_capacity(pairs.len());
+        for (k, v) in pairs {
+            if map.contains_key(&k) {
+                return Err(ApiError::new(
+                    ErrorCode::InvalidParameter,
+                    format!("?{}= is given more than once; give it once", clip(&k)),
+                )
+                .at(clip(&k)));
+            }
+            map.insert(k, v);
+        }
+        Ok(Params(map))
     }
 }
 
@@ -339,6 +358,26 @@ mod tests {
             .body(axum::body::Body::from(body))
             .unwrap();
         Json::<Body>::from_request(req, &()).await
+    }
+
+    #[tokio::test]
+    async fn a_repeated_query_parameter_is_refused_naming_it() {
+        let params = |uri: &'static str| async move {
+            let (mut parts, ()) = axum::http::Request::builder()
+                .uri(uri)
+                .body(())
+                .unwrap()
+                .into_parts();
+            Params::from_request_parts(&mut parts, &()).await
+        };
+        let Params(q) = params("/?width=8&height=9").await.ok().unwrap();
+        assert_eq!((q["width"].as_str(), q["height"].as_str()), ("8", "9"));
+        let e = params("/?width=8&width=9").await.err().unwrap();
+        assert_eq!(
+            (e.code, e.path.as_str()),
+            (ErrorCode::InvalidParameter, "width")
+        );
+        assert!(e.message.contains("more than once"), "{}", e.message);
     }
 
     #[tokio::test]

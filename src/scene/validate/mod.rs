@@ -5,7 +5,6 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
-use serde_json::Value;
 
 use super::doc::{
     join_path, split_marked, CameraDoc, DisplayDoc, FalloffDoc, ImageTextureDoc, LightDoc,
