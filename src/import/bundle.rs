@@ -96,7 +96,7 @@ impl<'z> Bundle<'z> {
                 continue;
             }
             let key = normalise(&e.name).map_err(|m| bad(format!("entry \"{}\": {m}", e.name)))?;
-            files.insert(key, e);
+            insert_once(&mut files, key, e)?;
         }
         Ok(Self {
             zip,
@@ -208,6 +208,26 @@ fn entries(zip: &[u8], max_entries: usize) -> Result<Vec<Entry>, BundleError> {
         .get(dir_at as usize..(dir_at + dir_len) as usize)
         .ok_or_else(|| bad("the central directory lies outside the file (truncated?)"))?;
     directory(dir, count)
+}
+
+/// Adds `e` under its normalised name `key`, refusing a second entry of that name: which
+/// of the two a reader would get is up to the reader, so the upload is ambiguous.
+fn insert_once(
+    files: &mut BTreeMap<String, Entry>,
+    key: String,
+    e: Entry,
+) -> Result<(), BundleError> {
+    match files.entry(key) {
+        std::collections::btree_map::Entry::Occupied(o) => Err(bad(format!(
+            "entry \"{}\" appears twice in the bundle (also as \"{}\")",
+            o.key(),
+            o.get().name
+        ))),
+        std::collections::btree_map::Entry::Vacant(v) => {
+            v.insert(e);
+            Ok(())
+        }
+    }
 }
 
 /// A name inside the bundle with `.` and `..` resolved; absolute names and names that
@@ -390,6 +410,30 @@ mod tests {
         assert!(!e.too_large);
         let e = err("models/a.ply", 2);
         assert!(e.too_large && e.message.contains("limit of 2 bytes"), "{e}");
+    }
+
+    #[test]
+    fn names_that_normalise_alike_are_refused() {
+        for (first, second) in [
+            ("a.ply", "a.ply"),
+            ("a/../b.ply", "b.ply"),
+            ("./c.ply", "c.ply"),
+        ] {
+            let z = stored_zip(&[
+                ("scene.pbrt", b"x", 0o100_644),
+                (first, b"1", 0o100_644),
+                (second, b"2", 0o100_644),
+            ]);
+            let e = Bundle::parse(&z, &limits()).unwrap_err();
+            let name = second.trim_start_matches("./");
+            assert!(
+                !e.too_large
+                    && e.message
+                        .contains(&format!("entry \"{name}\" appears twice in the bundle")),
+                "{}",
+                e.message
+            );
+        }
     }
 
     #[test]

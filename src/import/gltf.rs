@@ -62,12 +62,15 @@ pub fn import(
         vertices: 0,
         warnings: Vec::new(),
     };
-    im.load_buffers(bin)?;
-    im.check_extensions()?;
     let scene = gltf
         .document
         .default_scene()
         .or_else(|| gltf.document.scenes().next());
+    if let Some(scene) = &scene {
+        super::gltf_expansion::check(name, &gltf.document, scene, limits, MAX_DEPTH)?;
+    }
+    im.load_buffers(bin)?;
+    im.check_extensions()?;
     if let Some(scene) = scene {
         for node in scene.nodes() {
             im.node(&node, Mat4::IDENTITY, 0)?;
@@ -128,6 +131,11 @@ fn json_budget(limits: &ImportLimits) -> JsonBudget {
         max_values: objects.saturating_mul(128).saturating_add(65_536),
         max_containers: objects.saturating_mul(32).saturating_add(4_096),
     }
+}
+
+/// The arrays and objects a glTF's JSON may hold under `limits`.
+pub(super) fn max_containers(limits: &ImportLimits) -> u64 {
+    json_budget(limits).max_containers
 }
 
 /// The JSON's values counted before it is parsed (see [`super::json_count`]).
@@ -931,6 +939,94 @@ mod tests {
         out
     }
 
+    /// The triangle scene with `nodes` for its nodes and `roots` for its scene's.
+    fn with_nodes(nodes: &str, roots: &str) -> String {
+        triangle_json(3, "")
+            .replace(
+                r#""nodes":[{"mesh":0,"translation":[0,0,-3]}]"#,
+                &format!(r#""nodes":[{nodes}]"#),
+            )
+            .replace(r#""nodes":[0]"#, &format!(r#""nodes":[{roots}]"#))
+    }
+
+    /// `levels` levels of two nodes, each the parent of both nodes of the level below,
+    /// the last level's holding the triangle: 2^levels instances of it.
+    fn dag(levels: usize) -> String {
+        let nodes: Vec<String> = (0..2 * levels)
+            .map(|i| match i / 2 + 1 {
+                next if next < levels => {
+                    format!(r#"{{"children":[{},{}]}}"#, 2 * next, 2 * next + 1)
+                }
+                _ => r#"{"mesh":0}"#.to_string(),
+            })
+            .collect();
+        with_nodes(&nodes.join(","), "0,1")
+    }
+
+    /// The server's default limits (the command line's allow a million objects).
+    fn server_limits() -> ImportLimits {
+        ImportLimits {
+            max_objects: 10_000,
+            ..limits()
+        }
+    }
+
+    fn refused_fast(json: &str) -> ImportError {
+        let t = std::time::Instant::now();
+        let e = match import("t.glb", &glb(json), &none(), &server_limits()) {
+            Ok(im) => panic!("imported {} objects", im.doc.objects.len()),
+            Err(e) => e,
+        };
+        assert!(
+            t.elapsed() < std::time::Duration::from_secs(1),
+            "{:?}",
+            t.elapsed()
+        );
+        assert!(e.too_large, "{e}");
+        e
+    }
+
+    #[test]
+    fn instanced_scenes_are_counted_before_they_are_expanded() {
+        let max = server_limits().max_objects;
+        let e = refused_fast(&dag(40));
+        assert_eq!(e.location, "t.glb: /scenes/0/nodes/0");
+        let objects = format!("{} objects exceed this server's limit of {max}", 1u64 << 39);
+        assert!(e.message.contains(&objects), "{e}");
+        let roots = vec!["0"; 100_000].join(",");
+        let e = refused_fast(&with_nodes(r#"{"mesh":0}"#, &roots));
+        assert_eq!(e.location, format!("t.glb: /scenes/0/nodes/{max}"));
+        let objects = format!("{} objects exceed this server's limit of {max}", max + 1);
+        assert!(e.message.contains(&objects), "{e}");
+        // A small instanced scene is placed once per path to each node.
+        let im = import("t.glb", &glb(&dag(3)), &none(), &limits()).unwrap();
+        assert_eq!(im.doc.objects.len(), 8);
+        let im = import(
+            "t.gltf",
+            with_nodes(r#"{"mesh":0}"#, "0,0,0").as_bytes(),
+            &none(),
+            &limits(),
+        )
+        .unwrap();
+        assert_eq!(im.doc.objects.len(), 3);
+    }
+
+    #[test]
+    fn cycles_and_deep_trees_are_refused_before_the_walk() {
+        let cycle = with_nodes(r#"{"children":[1]},{"children":[0],"mesh":0}"#, "0");
+        let e = import("t.gltf", cycle.as_bytes(), &none(), &limits()).unwrap_err();
+        assert!(
+            !e.too_large && e.message.contains("its own ancestor"),
+            "{e}"
+        );
+        let chain: Vec<String> = (0..100)
+            .map(|i| format!(r#"{{"children":[{}]}}"#, i + 1))
+            .collect();
+        let deep = with_nodes(&format!(r#"{},{{"mesh":0}}"#, chain.join(",")), "0");
+        let e = import("t.gltf", deep.as_bytes(), &none(), &limits()).unwrap_err();
+        assert!(e.message.contains("deeper than 64"), "{e}");
+    }
+
     #[test]
     fn buffers_naming_one_file_many_times_are_bounded_together() {
         let j = with_uri(3, None, "");
@@ -1041,20 +1137,19 @@ mod tests {
             ..limits()
         };
         let e = import("t.gltf", j.as_bytes(), &none(), &l).unwrap_err();
+        // Counted from the accessors' declared counts before any is read: refused at
+        // the second root.
         assert!(e.too_large, "{e}");
-        assert_eq!(
-            e.location,
-            "t.gltf: /meshes/0/primitives/0/attributes/POSITION"
-        );
-        assert!(e.message.contains("more than 6 vertices"), "{e}");
-        // One accessor past the vertex bound is refused before it is read.
+        assert_eq!(e.location, "t.gltf: /scenes/0/nodes/1");
+        assert!(e.message.contains("8 vertices, more than 6"), "{e}");
         let l = ImportLimits {
             max_triangles: 1,
             ..limits()
         };
         let e = import("t.gltf", j.as_bytes(), &none(), &l).unwrap_err();
         assert!(e.too_large, "{e}");
-        assert_eq!(e.location, "t.gltf: /accessors/0/count");
+        assert_eq!(e.location, "t.gltf: /scenes/0/nodes/0");
+        assert!(e.message.contains("4 vertices, more than 3"), "{e}");
     }
 
     #[test]

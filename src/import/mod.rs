@@ -13,6 +13,7 @@
 
 pub mod bundle;
 pub mod gltf;
+mod gltf_expansion;
 pub mod json_count;
 pub mod obj;
 pub mod pbrt;

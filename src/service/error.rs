@@ -217,6 +217,10 @@ pub async fn json_errors(State(st): State<AppState>, res: Response) -> Response 
 /// triangles"); `None` for anything else and for the fixed limits (texels, file sizes,
 /// bundle entries).
 pub(super) fn raise_flag(path: &str, message: &str) -> Option<&'static str> {
+    // Checked first: a glTF's object count names its triangles too.
+    if message.contains(" objects exceed this server's limit") {
+        return Some("--max-objects");
+    }
     // The importers' triangle limits are the scene's (`ImportLimits::from_scene`).
     if message.contains("limit of") && message.contains(" triangles") {
         return Some("--max-triangles");
