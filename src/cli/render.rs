@@ -314,7 +314,16 @@ fn render_options(a: &RenderArgs, scene: &crate::scene::Scene) -> anyhow::Result
 /// per pixel, seed, size, t0) applied.
 fn load_scene(a: &RenderArgs) -> anyhow::Result<crate::scene::Scene> {
     let (mut scene, import_warnings) = crate::import::load_path(&a.scene, &Limits::command_line())
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+        .map_err(|e| {
+            // An import's error already starts with the file it is about.
+            let path = a.scene.display().to_string();
+            let text = e.to_string();
+            if text.starts_with(&path) {
+                anyhow::anyhow!(text)
+            } else {
+                anyhow::anyhow!("{path}: {text}")
+            }
+        })?;
     for w in &import_warnings {
         eprintln!("warning: {w}");
     }
