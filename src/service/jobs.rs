@@ -1867,6 +1867,14 @@ mod tests {
         jobs.shutdown().await;
     }
 
+    /// Sends a grey frame 0 of the scene's size, as a render's first, and returns it.
+    fn first_grey_frame(scene: &crate::scene::Scene, on_frame: &mut dyn FnMut(&Frame)) -> Frame {
+        let mut f = frame(0, 2.0, false);
+        f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
+        on_frame(&f);
+        f
+    }
+
     /// Sends a frame, waits for a cancel (at most 10 s) and then ends as if it had not
     /// seen it: a render whose last step (a denoise) does not look at the token.
     fn finishing_despite_a_cancel(
@@ -1875,9 +1883,7 @@ mod tests {
         on_frame: &mut dyn FnMut(&Frame),
         cancel: &CancelToken,
     ) -> Result<Frame, RenderError> {
-        let mut f = frame(0, 2.0, false);
-        f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
-        on_frame(&f);
+        let mut f = first_grey_frame(&scene, on_frame);
         let deadline = Instant::now() + std::time::Duration::from_secs(10);
         while !cancel.is_cancelled() && Instant::now() < deadline {
             std::thread::sleep(std::time::Duration::from_millis(2));
@@ -1895,9 +1901,7 @@ mod tests {
         on_frame: &mut dyn FnMut(&Frame),
         _cancel: &CancelToken,
     ) -> Result<Frame, RenderError> {
-        let mut f = frame(0, 2.0, false);
-        f.image = Image::filled(scene.width, scene.height, Rgb::splat(0.5));
-        on_frame(&f);
+        first_grey_frame(&scene, on_frame);
         Err(RenderError::Denoise(crate::denoise::DenoiseError::Library(
             "denoising a 100000x1 image: out of memory".into(),
         )))
