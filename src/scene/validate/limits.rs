@@ -4,8 +4,9 @@
 use super::*;
 
 /// Every limit a document's declared sizes can pass; the bounce limit is capped with a
-/// warning instead (see below).
-pub(super) fn check_sizes(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) {
+/// warning instead (see below). Whether the geometry (objects, declared triangles) is
+/// past its limit: then it is not built at all.
+pub(super) fn check_sizes(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) -> bool {
     let (w, h) = (doc.image.width, doc.image.height);
     for (path, v, max) in [
         ("image.width", w, limits.max_width),
@@ -65,12 +66,14 @@ pub(super) fn check_sizes(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) {
             ),
         );
     }
-    check_geometry_size(cx, doc, limits);
+    check_geometry_size(cx, doc, limits)
 }
 
-/// The objects and the triangles they declare (OBJ files add theirs when loaded).
-fn check_geometry_size(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) {
-    if doc.objects.len() > limits.max_objects {
+/// The objects and the triangles they declare (OBJ files add theirs when loaded), and
+/// whether either is past its limit.
+fn check_geometry_size(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) -> bool {
+    let too_many = doc.objects.len() > limits.max_objects;
+    if too_many {
         cx.limit(
             "objects",
             format!(
@@ -100,4 +103,5 @@ fn check_geometry_size(cx: &mut Ctx, doc: &SceneDoc, limits: &Limits) {
             ),
         );
     }
+    too_many || declared > limits.max_triangles
 }
