@@ -560,18 +560,28 @@ fn tagged<'de, D: Deserializer<'de>>(
     types: &[&str],
 ) -> Result<(String, Value), D::Error> {
     let mut map = serde_json::Map::<String, Value>::deserialize(d)?;
-    let list = types.join(", ");
-    match map.remove("type") {
-        None => Err(marked(
+    let Some(t) = map.remove("type") else {
+        return Err(marked(
             "type",
-            format!("missing field `type` (a {what} type: one of {list})"),
-        )),
-        Some(Value::String(t)) if types.contains(&t.as_str()) => Ok((t, Value::Object(map))),
-        Some(Value::String(t)) => Err(marked(
+            format!(
+                "missing field `type` (a {what} type: one of {})",
+                types.join(", ")
+            ),
+        ));
+    };
+    Ok((type_named(t, what, types)?, Value::Object(map)))
+}
+
+/// The value of a `type` field, checked to be one of `types`.
+fn type_named<E: serde::de::Error>(t: Value, what: &str, types: &[&str]) -> Result<String, E> {
+    let list = types.join(", ");
+    match t {
+        Value::String(t) if types.contains(&t.as_str()) => Ok(t),
+        Value::String(t) => Err(marked(
             "type",
             format!("unknown {what} type `{t}`, expected one of {list}"),
         )),
-        Some(other) => Err(marked(
+        other => Err(marked(
             "type",
             format!("must be a string (one of {list}), got {other}"),
         )),
@@ -626,9 +636,51 @@ impl<'de> Deserialize<'de> for TextureDoc {
     }
 }
 
+const OBJECT_TYPES: [&str; 5] = ["sphere", "quad", "box", "mesh", "obj"];
+
+/// An object whose `type` comes first (as every bundled, imported and written document
+/// has it) is read as it streams: a mesh's arrays go straight into their vectors. Read
+/// whole into a `Value` first, as the other tagged types are, an 8 MB mesh held ~20× its
+/// text. An object whose `type` comes later is read whole, as before.
 impl<'de> Deserialize<'de> for ObjectDoc {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        let (t, rest) = tagged(d, "object", &["sphere", "quad", "box", "mesh", "obj"])?;
+        d.deserialize_map(ObjectVisitor)
+    }
+}
+
+struct ObjectVisitor;
+
+impl<'de> serde::de::Visitor<'de> for ObjectVisitor {
+    type Value = ObjectDoc;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("an object with a `type`")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<ObjectDoc, A::Error> {
+        let first: Option<String> = map.next_key()?;
+        if first.as_deref() == Some("type") {
+            let t = type_named(map.next_value()?, "object", &OBJECT_TYPES)?;
+            // The caller's path tracking goes on through the same map: an error in the
+            // rest is named by its whole path already.
+            let rest = serde::de::value::MapAccessDeserializer::new(map);
+            return match t.as_str() {
+                "sphere" => SphereDoc::deserialize(rest).map(ObjectDoc::Sphere),
+                "quad" => QuadDoc::deserialize(rest).map(ObjectDoc::Quad),
+                "box" => BoxDoc::deserialize(rest).map(ObjectDoc::Box),
+                "mesh" => MeshDoc::deserialize(rest).map(ObjectDoc::Mesh),
+                _ => ObjDoc::deserialize(rest).map(ObjectDoc::Obj),
+            };
+        }
+        let mut whole = serde_json::Map::new();
+        if let Some(key) = first {
+            whole.insert(key, map.next_value()?);
+        }
+        while let Some((key, value)) = map.next_entry::<String, Value>()? {
+            whole.insert(key, value);
+        }
+        let (t, rest) =
+            tagged(Value::Object(whole), "object", &OBJECT_TYPES).map_err(A::Error::custom)?;
         match t.as_str() {
             "sphere" => variant(rest).map(ObjectDoc::Sphere),
             "quad" => variant(rest).map(ObjectDoc::Quad),
@@ -637,6 +689,25 @@ impl<'de> Deserialize<'de> for ObjectDoc {
             _ => variant(rest).map(ObjectDoc::Obj),
         }
     }
+}
+
+/// A data error's message without the " at line L column C" a streaming parse appends:
+/// the error names its place by JSON path instead, as one from a parsed tree does.
+#[must_use]
+pub fn without_position(mut msg: String) -> String {
+    if let Some(at) = msg.rfind(" at line ") {
+        let tail = &msg[at + " at line ".len()..];
+        let is_position = tail.split_once(" column ").is_some_and(|(l, c)| {
+            !l.is_empty()
+                && !c.is_empty()
+                && l.bytes().all(|b| b.is_ascii_digit())
+                && c.bytes().all(|b| b.is_ascii_digit())
+        });
+        if is_position {
+            msg.truncate(at);
+        }
+    }
+    msg
 }
 
 impl<'de> Deserialize<'de> for LightDoc {

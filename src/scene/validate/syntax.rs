@@ -39,7 +39,7 @@ pub(super) fn parse_doc(json: &str) -> Result<SceneDoc, SceneError> {
     serde_path_to_error::deserialize::<_, SceneDoc>(&mut de).map_err(|e| {
         let outer = e.path().to_string();
         let outer = if outer == "." { String::new() } else { outer };
-        let msg = without_position(e.into_inner().to_string());
+        let msg = crate::scene::doc::without_position(e.into_inner().to_string());
         let (inner, msg) = split_marked(&msg);
         let mut path = join_path(&outer, inner);
         // serde_path_to_error stops at the object holding an unknown field; the spec
@@ -113,24 +113,6 @@ fn json_type(json: &str) -> &'static str {
         Some(b'n') => "null",
         _ => "a number",
     }
-}
-
-/// A data error's message without the " at line L column C" a streaming parse appends:
-/// the error names the field by its JSON path instead, as it did from a parsed tree.
-fn without_position(mut msg: String) -> String {
-    if let Some(at) = msg.rfind(" at line ") {
-        let tail = &msg[at + " at line ".len()..];
-        let is_position = tail.split_once(" column ").is_some_and(|(l, c)| {
-            !l.is_empty()
-                && !c.is_empty()
-                && l.bytes().all(|b| b.is_ascii_digit())
-                && c.bytes().all(|b| b.is_ascii_digit())
-        });
-        if is_position {
-            msg.truncate(at);
-        }
-    }
-    msg
 }
 
 /// A serde_json parse error, with the path where it happened when that helps.

@@ -919,3 +919,36 @@ fn render_sampler_is_independent_unless_sobol_is_asked_for() {
         "{msg}"
     );
 }
+
+/// An object whose `type` comes first is read as it streams, one whose `type` comes later
+/// whole: both give the same scene, and their errors the same paths.
+#[test]
+fn an_objects_type_first_or_last_reads_alike() {
+    let mesh = r#"{"type": "mesh", "positions": [[0,0,0],[1,0,0],[0,1,0]], "indices": [[0,1,2]], "material": "m"}"#;
+    let last = r#"{"positions": [[0,0,0],[1,0,0],[0,1,0]], "indices": [[0,1,2]], "material": "m", "type": "mesh"}"#;
+    let doc = |object: &str| {
+        let mut v = base();
+        v["objects"] = serde_json::from_str(&format!("[{object}]")).unwrap();
+        v.to_string()
+    };
+    let first = parse_scene(&doc(mesh), &SceneOrigin::Request, &limits()).unwrap();
+    let later = parse_scene(&doc(last), &SceneOrigin::Request, &limits()).unwrap();
+    assert_eq!(first.triangle_count(), 1);
+    assert_eq!(first.triangle_count(), later.triangle_count());
+    for object in [mesh, last] {
+        let bad = object.replace("[1,0,0]", "[1,\"x\",0]");
+        let (k, p, m) = refused(&doc(&bad));
+        assert_eq!(
+            (k, p.as_str()),
+            (SceneErrorKind::InvalidScene, "objects[0].positions[1][1]"),
+            "{m}"
+        );
+        assert!(!m.contains(" at line "), "{m}");
+        let unknown = object.replace("\"material\"", "\"colour\": 1, \"material\"");
+        let (_, p, m) = refused(&doc(&unknown));
+        assert_eq!(p, "objects[0].colour", "{m}");
+    }
+    let (_, p, m) = refused(&doc(&mesh.replace("\"mesh\"", "\"blob\"")));
+    assert_eq!(p, "objects[0].type", "{m}");
+    assert!(m.contains("unknown object type `blob`"), "{m}");
+}
