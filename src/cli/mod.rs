@@ -541,6 +541,15 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_job_memory_budget_is_half_a_gigabyte_to_a_petabyte() {
+        assert_eq!(positive_gb("10"), Ok(10.0));
+        assert_eq!(positive_gb("0.5"), Ok(0.5));
+        for bad in ["0.4", "0", "-1", "NaN", "inf", "1e7", "ten", ""] {
+            assert!(positive_gb(bad).is_err(), "{bad}");
+        }
+    }
+
     /// Each `--max-*` flag sets its own limit and no other (the 422 tests reach two of
     /// them through a real server).
     #[test]

@@ -341,18 +341,9 @@ impl Denoiser {
             return self.run_exact(inputs, params);
         }
         let (pw, ph) = (w.max(MIN_SIDE), h.max(MIN_SIDE));
-        let padded: Vec<LinearImage> = inputs
-            .iter()
-            .map(|(_, image)| {
-                LinearImage::from_fn(pw, ph, |x, y| *image.get(mirror(x, w), mirror(y, h)))
-            })
-            .collect();
-        let named: Vec<(&CStr, &LinearImage)> = inputs
-            .iter()
-            .zip(&padded)
-            .map(|((name, _), image)| (*name, image))
-            .collect();
-        let out = self.run_exact(&named, params)?;
+        let out = self.run_on(inputs, params, |image| {
+            LinearImage::from_fn(pw, ph, |x, y| *image.get(mirror(x, w), mirror(y, h)))
+        })?;
         Ok(LinearImage::from_fn(w, h, |x, y| *out.get(x, y)))
     }
 
@@ -366,49 +357,54 @@ impl Denoiser {
     ) -> Result<LinearImage, DenoiseError> {
         let (w, h) = (inputs[0].1.width(), inputs[0].1.height());
         let across_x = w >= h;
-        let long = if across_x { w } else { h };
+        // A strip's pixel (along, across) is the image's (x, y) across x, (y, x) across y.
+        let at = |along: u32, across: u32| {
+            if across_x {
+                (along, across)
+            } else {
+                (across, along)
+            }
+        };
+        let (long, short) = at(w, h);
         let core = MAX_SIDE - 2 * STRIP_OVERLAP;
         let mut out = LinearImage::filled(w, h, Rgb::ZERO);
         for start in (0..long).step_by(core as usize) {
             let end = (start + core).min(long);
-            let (from, to) = (
-                start.saturating_sub(STRIP_OVERLAP),
-                (end + STRIP_OVERLAP).min(long),
-            );
-            let cut = |image: &LinearImage| {
-                let (sw, sh) = if across_x {
-                    (to - from, h)
-                } else {
-                    (w, to - from)
-                };
+            let from = start.saturating_sub(STRIP_OVERLAP);
+            let to = (end + STRIP_OVERLAP).min(long);
+            let (sw, sh) = at(to - from, short);
+            let done = self.run_on(inputs, params, |image| {
                 LinearImage::from_fn(sw, sh, |x, y| {
-                    if across_x {
-                        *image.get(from + x, y)
-                    } else {
-                        *image.get(x, from + y)
-                    }
+                    let (along, across) = at(x, y);
+                    let (ix, iy) = at(from + along, across);
+                    *image.get(ix, iy)
                 })
-            };
-            let strips: Vec<LinearImage> = inputs.iter().map(|(_, image)| cut(image)).collect();
-            let named: Vec<(&CStr, &LinearImage)> = inputs
-                .iter()
-                .zip(&strips)
-                .map(|((name, _), image)| (*name, image))
-                .collect();
-            let done = self.run(&named, params)?;
-            for i in start..end {
-                for j in 0..if across_x { h } else { w } {
-                    let (x, y) = if across_x { (i, j) } else { (j, i) };
-                    let (sx, sy) = if across_x {
-                        (i - from, j)
-                    } else {
-                        (j, i - from)
-                    };
+            })?;
+            for along in start..end {
+                for across in 0..short {
+                    let (x, y) = at(along, across);
+                    let (sx, sy) = at(along - from, across);
                     out.set(x, y, *done.get(sx, sy));
                 }
             }
         }
         Ok(out)
+    }
+
+    /// [`Self::run`] on each input made into another image by `make` (all the same size).
+    fn run_on(
+        &self,
+        inputs: &[(&CStr, &LinearImage)],
+        params: &Params,
+        make: impl Fn(&LinearImage) -> LinearImage,
+    ) -> Result<LinearImage, DenoiseError> {
+        let made: Vec<LinearImage> = inputs.iter().map(|(_, image)| make(image)).collect();
+        let named: Vec<(&CStr, &LinearImage)> = inputs
+            .iter()
+            .zip(&made)
+            .map(|((name, _), image)| (*name, image))
+            .collect();
+        self.run(&named, params)
     }
 
     /// One `RT` filter run at the inputs' own size. A filter per call: creating and

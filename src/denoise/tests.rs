@@ -440,3 +440,27 @@ fn strips_join_without_seams() {
     }
     assert!(worst < 0.02, "strips differ from one run by up to {worst}");
 }
+
+/// A cancelled run does not wait for the device another run holds.
+#[test]
+fn a_cancel_ends_the_wait_for_a_busy_device() {
+    let d = denoiser();
+    let busy = d.device.lock().unwrap_or_else(PoisonError::into_inner);
+    let run = Run::new(Quality::Fast);
+    let input = flat(64, 64, Rgb::splat(0.5));
+    std::thread::scope(|s| {
+        let waiting = s.spawn(|| d.denoise(&input, None, &run));
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        assert!(!waiting.is_finished(), "it waits for the device");
+        let t = std::time::Instant::now();
+        run.cancel.cancel();
+        let r = waiting.join().unwrap();
+        assert!(matches!(r, Err(DenoiseError::Cancelled)), "{:?}", r.err());
+        assert!(
+            t.elapsed() < std::time::Duration::from_millis(100),
+            "{:?}",
+            t.elapsed()
+        );
+    });
+    drop(busy);
+}

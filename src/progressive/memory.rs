@@ -60,12 +60,14 @@ fn bytes_per_pixel(mode: RenderMode) -> u64 {
 
 /// The denoiser's images per pixel beside the mode's own: colour, albedo and normal,
 /// their sanitised copies, the output and the frame it goes into. A reference or adaptive
-/// render holds them beside everything else (measured about 140 B at 1024² beyond the
-/// scratch); the loops denoise their last frame only, when most of their state is gone
-/// (measured 35 B at 4096², the scratch included).
+/// render holds them beside everything else (a reference render with the denoiser held
+/// 840 B a pixel more than without at 1024²; OIDN's untiled scratch at 2048², 2.7 GB,
+/// is ~650 B of it, so ~190 B is the images, estimated, not measured apart); the loops
+/// denoise their last frame only, when most of their state is gone (measured 35 B at
+/// 4096², the scratch included).
 fn denoise_bytes_per_pixel(mode: RenderMode) -> u64 {
     match mode {
-        RenderMode::Reference | RenderMode::Adaptive => 160,
+        RenderMode::Reference | RenderMode::Adaptive => 192,
         RenderMode::Progressive | RenderMode::Guo => 48,
     }
 }

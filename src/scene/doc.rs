@@ -721,3 +721,23 @@ impl<'de> Deserialize<'de> for LightDoc {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::without_position;
+
+    #[test]
+    fn only_a_trailing_position_is_taken_off() {
+        let m = |s: &str| without_position(s.to_owned());
+        assert_eq!(
+            m("invalid type: string \"x\", expected f32 at line 3 column 17"),
+            "invalid type: string \"x\", expected f32"
+        );
+        assert_eq!(m("unknown field `a`"), "unknown field `a`");
+        assert_eq!(
+            m("name \"at line 3 column x\""),
+            "name \"at line 3 column x\""
+        );
+        assert_eq!(m("ends at line 4"), "ends at line 4");
+    }
+}
